@@ -1,0 +1,72 @@
+"""What the four static controllers share: the design matrices and the target structure F_d.
+
+Every controller maps a plant state eta (and, for tracking, a reference jet) to the input u, and
+states the closed loop it enforces: eta' = F_d grad H_d(eta, t), eq. (closedloop).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import closed_loop
+from .ph_plant import EMPlant, Jet
+
+
+def as_matrix(value, shape: tuple[int, int], name: str, owner: str) -> np.ndarray:
+    """A scalar or array parameter as a float matrix of `shape`, or a ValueError naming it."""
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}: parameter {name} = {value!r} is not a number or matrix") from None
+    if a.ndim == 0:
+        a = a * np.eye(shape[0], shape[1]) if shape[0] == shape[1] else np.full(shape, float(a))
+    if a.shape != shape:
+        raise ValueError(f"{owner}: parameter {name} has shape {a.shape}, expected {shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{owner}: parameter {name} = {a.tolist()} must be finite")
+    return a
+
+
+def quadratic(x: np.ndarray, center: np.ndarray, W: np.ndarray):
+    """1/2 (x - center)^T W (x - center): the quadratic Phi/Theta of the paper's examples."""
+    d = x - center
+    return 0.5 * d @ W @ d
+
+
+class Controller:
+    """Base of the four controllers.
+
+    plant    the EM plant (eq. open-loop elecmech)
+    R_e_bar  desired electrical damping R_e + K_e > 0 (eq. barRe), n_e x n_e
+    D_d      coupled damping, n_e x n_m (eq. closedloop)
+    Gamma    coupling matrix of the target structure, n_m x n_e (zero for Prop. 1 and Thm. 2)
+    """
+
+    name = "controller"
+    tracking = False
+
+    def __init__(self, plant: EMPlant, R_e_bar, D_d, Gamma):
+        self.plant = plant
+        m, e = plant.n_m, plant.n_e
+        self.R_e_bar = as_matrix(R_e_bar, (e, e), "R_e_bar", self.name)
+        self.D_d = as_matrix(D_d, (e, m), "D_d", self.name)
+        self.Gamma = as_matrix(Gamma, (m, e), "Gamma", self.name)
+        closed_loop.check_R_e_bar(self.R_e_bar, plant.J_e, self.name)
+        self.K_e = self.R_e_bar - plant.R_e                       # eq. (barRe)
+        self.JR_bar = plant.J_e - self.R_e_bar                    # J_e - R_e_bar, invertible
+        self.G_inv = np.linalg.inv(plant.G_e)
+
+    def F_d(self) -> np.ndarray:
+        """Target structure matrix F_d = J_d - R_d, eqs. (closedloop), (Eq:R-J)."""
+        p = self.plant
+        return closed_loop.F_d(p.R_m, p.J_e, self.R_e_bar, self.Gamma, self.D_d)
+
+    def u(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
+        raise NotImplementedError
+
+    def H_d(self, eta: np.ndarray, jet: Jet | None = None):
+        """Desired Hamiltonian; written independently of u, so grad H_d can check the matching."""
+        raise NotImplementedError
+
+    def target(self, jet: Jet | None = None) -> np.ndarray:
+        """The state the closed loop should be at: eta_d (regulation) or eta*(t) (tracking)."""
+        raise NotImplementedError

@@ -1,0 +1,88 @@
+"""Reference jets (q*, q*', q*'', q*''') for the tracking and regulation controllers.
+
+A jet is turned into a feasible trajectory eta*(t) and x_e*'(t) by the plant
+(`EMPlant.feasible_state`, Definition 1).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .parameters import Parameter, resolve
+from .ph_plant import Jet
+
+
+class Reference:
+    """A reference position q*(t) with three continuous derivatives."""
+
+    PARAMETERS: dict[str, Parameter] = {}
+    name = "reference"
+
+    def __init__(self, **params: float):
+        self.params = resolve(self.PARAMETERS, params, self.name)
+        for k, v in self.params.items():
+            setattr(self, k, v)
+
+    def jet(self, t: float) -> Jet:
+        raise NotImplementedError
+
+
+class Constant(Reference):
+    """Constant set-point q*(t) = q_d."""
+
+    name = "constant reference"
+    PARAMETERS = {p.name: p for p in [
+        Parameter("q_d", 3e-5, "m", "set-point position", "any"),
+    ]}
+
+    def jet(self, t: float) -> Jet:
+        z = np.zeros(1)
+        return Jet(np.array([self.q_d]), z, z, z)
+
+
+class Sinusoid(Reference):
+    """q*(t) = offset + amplitude sin(omega t + phase); the paper's MEMS q* = 0.05 + 0.05 sin 30t (eq. csim)."""
+
+    name = "sinusoidal reference"
+    PARAMETERS = {p.name: p for p in [
+        Parameter("offset", 0.05, "m", "mean position", "any"),
+        Parameter("amplitude", 0.05, "m", "amplitude", "any"),
+        Parameter("omega", 30.0, "rad/s", "angular frequency", ">= 0"),
+        Parameter("phase", 0.0, "rad", "phase at t = 0", "any"),
+    ]}
+
+    def jet(self, t: float) -> Jet:
+        a, w, th = self.amplitude, self.omega, self.omega * t + self.phase
+        s, c = math.sin(th), math.cos(th)
+        return Jet(np.array([self.offset + a * s]), np.array([a * w * c]),
+                   np.array([-a * w ** 2 * s]), np.array([-a * w ** 3 * c]))
+
+
+class SmoothStep(Reference):
+    """Set-point transition from q_0 to q_1 starting at t_0 and lasting T.
+
+    Uses the degree-7 polynomial s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7, whose first
+    three derivatives vanish at tau = 0 and tau = 1, so q*, q*', q*'', q*''' are continuous.
+    """
+
+    name = "smooth transition reference"
+    PARAMETERS = {p.name: p for p in [
+        Parameter("q_0", 2e-5, "m", "initial set-point", "any"),
+        Parameter("q_1", 3e-5, "m", "final set-point", "any"),
+        Parameter("t_0", 0.0, "s", "start of the transition", ">= 0"),
+        Parameter("T", 1e-3, "s", "duration of the transition"),
+    ]}
+
+    def jet(self, t: float) -> Jet:
+        tau = min(max((t - self.t_0) / self.T, 0.0), 1.0)
+        s = 35 * tau**4 - 84 * tau**5 + 70 * tau**6 - 20 * tau**7
+        s1 = 140 * tau**3 - 420 * tau**4 + 420 * tau**5 - 140 * tau**6
+        s2 = 420 * tau**2 - 1680 * tau**3 + 2100 * tau**4 - 840 * tau**5
+        s3 = 840 * tau - 5040 * tau**2 + 8400 * tau**3 - 4200 * tau**4
+        d, T = self.q_1 - self.q_0, self.T
+        return Jet(np.array([self.q_0 + d * s]), np.array([d * s1 / T]),
+                   np.array([d * s2 / T**2]), np.array([d * s3 / T**3]))
+
+
+KINDS = {"constant": Constant, "sinusoid": Sinusoid, "smooth_step": SmoothStep}

@@ -60,7 +60,7 @@ class Sinusoid(Reference):
 
 
 class SmoothStep(Reference):
-    """Set-point transition from q_0 to q_1 starting at t_0 and lasting T.
+    """Set-point transition from q_from to q_to starting at t_start and lasting `duration`.
 
     Uses the degree-7 polynomial s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7, whose first
     three derivatives vanish at tau = 0 and tau = 1, so q*, q*', q*'', q*''' are continuous.
@@ -68,20 +68,20 @@ class SmoothStep(Reference):
 
     name = "smooth transition reference"
     PARAMETERS = {p.name: p for p in [
-        Parameter("q_0", 2e-5, "m", "initial set-point", "any"),
-        Parameter("q_1", 3e-5, "m", "final set-point", "any"),
-        Parameter("t_0", 0.0, "s", "start of the transition", ">= 0"),
-        Parameter("T", 1e-3, "s", "duration of the transition"),
+        Parameter("q_from", 2e-5, "m", "set-point before the transition", "any"),
+        Parameter("q_to", 3e-5, "m", "set-point after the transition", "any"),
+        Parameter("t_start", 0.0, "s", "start of the transition", ">= 0"),
+        Parameter("duration", 1e-3, "s", "duration of the transition"),
     ]}
 
     def jet(self, t: float) -> Jet:
-        tau = min(max((t - self.t_0) / self.T, 0.0), 1.0)
+        tau = min(max((t - self.t_start) / self.duration, 0.0), 1.0)
         s = 35 * tau**4 - 84 * tau**5 + 70 * tau**6 - 20 * tau**7
         s1 = 140 * tau**3 - 420 * tau**4 + 420 * tau**5 - 140 * tau**6
         s2 = 420 * tau**2 - 1680 * tau**3 + 2100 * tau**4 - 840 * tau**5
         s3 = 840 * tau - 5040 * tau**2 + 8400 * tau**3 - 4200 * tau**4
-        d, T = self.q_1 - self.q_0, self.T
-        return Jet(np.array([self.q_0 + d * s]), np.array([d * s1 / T]),
+        d, T = self.q_to - self.q_from, self.duration
+        return Jet(np.array([self.q_from + d * s]), np.array([d * s1 / T]),
                    np.array([d * s2 / T**2]), np.array([d * s3 / T**3]))
 
 

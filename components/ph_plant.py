@@ -189,6 +189,7 @@ class EMPlant:
             raise NotImplementedError(f"{self.name}: feasible_state needs n_m = n_e = 1 and constant M; "
                                       "override it for this plant")
         q, qd, qdd, qddd = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
+        self.check_state(np.concatenate([q, np.zeros(self.n_m + self.n_e)]))
         m = 1.0 / self.M_inv(q)[0, 0]
         Rm = self.R_m[0, 0]
         force = m * qdd + Rm * qd + self.grad_V(q)                           # F* (p-row)

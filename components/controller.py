@@ -26,6 +26,13 @@ def as_matrix(value, shape: tuple[int, int], name: str, owner: str) -> np.ndarra
     return a
 
 
+def check_positive_definite(W: np.ndarray, name: str, owner: str) -> None:
+    """Weights of the quadratic Phi/Theta must be symmetric positive definite (k_c > 0 in the paper)."""
+    if not np.allclose(W, W.T) or not np.min(np.linalg.eigvalsh(W)) > 0:
+        raise ValueError(f"{owner}: parameter {name} = {W.tolist()} violates {name} > 0 "
+                         "(symmetric positive definite)")
+
+
 def quadratic(x: np.ndarray, center: np.ndarray, W: np.ndarray):
     """1/2 (x - center)^T W (x - center): the quadratic Phi/Theta of the paper's examples."""
     d = x - center

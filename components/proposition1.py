@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import closed_loop
-from .controller import Controller, as_matrix, quadratic
+from .controller import Controller, as_matrix, check_positive_definite, quadratic
 from .ph_plant import EMPlant, Jet
 
 
@@ -39,6 +39,7 @@ class Proposition1(Controller):
         super().__init__(plant, R_e_bar, D_d, np.zeros((plant.n_m, plant.n_e)))
         closed_loop.check_ph_condition(plant.R_m, self.R_e_bar, self.D_d, strict=True, owner=self.name)
         self.W = as_matrix(np.eye(plant.n_e) if W is None else W, (plant.n_e, plant.n_e), "W", self.name)
+        check_positive_definite(self.W, "W", self.name)
         self.eta_d = plant.equilibrium(q_d)
         q_d, _, x_ed = plant.split(self.eta_d)
         self.L1 = -np.linalg.solve(self.W, plant.Psi(q_d) @ x_ed)          # eq. (RegL), from (phi11)

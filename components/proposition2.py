@@ -15,14 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import closed_loop
-from .controller import Controller, as_matrix, quadratic
+from .controller import Controller, as_matrix, check_positive_definite, quadratic
 from .ph_plant import EMPlant
-
-
-def check_K_c(K_c: np.ndarray, owner: str) -> None:
-    """K_c must be symmetric positive definite (k_c > 0 in the paper)."""
-    if not np.allclose(K_c, K_c.T) or not np.min(np.linalg.eigvalsh(K_c)) > 0:
-        raise ValueError(f"{owner}: parameter k_c = {K_c.tolist()} violates k_c > 0 (symmetric positive definite)")
 
 
 class Proposition2(Controller):
@@ -41,7 +35,7 @@ class Proposition2(Controller):
         super().__init__(plant, R_e_bar, D_d, plant.Gamma)
         closed_loop.check_ph_condition(plant.R_m, self.R_e_bar, self.D_d, strict=False, owner=self.name)
         self.K_c = as_matrix(k_c, (plant.n_e, plant.n_e), "k_c", self.name)
-        check_K_c(self.K_c, self.name)
+        check_positive_definite(self.K_c, "k_c", self.name)
         self.A = -plant.G_e.T @ np.linalg.inv(self.JR_bar).T                # z = A (Gamma^T q + x_e)
         self.eta_d = plant.equilibrium(q_d)
         q_d, _, x_ed = plant.split(self.eta_d)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .controller import Controller, as_matrix, quadratic
+from .controller import Controller, as_matrix, check_positive_definite, quadratic
 from .ph_plant import EMPlant, Jet
 from .proposition1 import law_c1
 
@@ -27,6 +27,7 @@ class Theorem2(Controller):
     def __init__(self, plant: EMPlant, R_e_bar, D_d=0.0, W=None):
         super().__init__(plant, R_e_bar, D_d, np.zeros((plant.n_m, plant.n_e)))
         self.W = as_matrix(np.eye(plant.n_e) if W is None else W, (plant.n_e, plant.n_e), "W", self.name)
+        check_positive_definite(self.W, "W", self.name)
 
     def L2(self, jet: Jet) -> np.ndarray:
         """Offset L_2(t) from the feasibility condition (feasibleT2)."""

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .controller import Controller, as_matrix, quadratic
+from .controller import Controller, as_matrix, check_positive_definite, quadratic
 from .ph_plant import EMPlant, Jet
-from .proposition2 import check_K_c, law_u2
+from .proposition2 import law_u2
 
 
 class Theorem3(Controller):
@@ -34,7 +34,7 @@ class Theorem3(Controller):
     def __init__(self, plant: EMPlant, R_e_bar, k_c=20.0, D_d=0.0):
         super().__init__(plant, R_e_bar, D_d, plant.Gamma)
         self.K_c = as_matrix(k_c, (plant.n_e, plant.n_e), "k_c", self.name)
-        check_K_c(self.K_c, self.name)
+        check_positive_definite(self.K_c, "k_c", self.name)
         self.A = -plant.G_e.T @ np.linalg.inv(self.JR_bar).T                # z = A (Gamma^T q + x_e)
 
     def z(self, eta):

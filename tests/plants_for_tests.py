@@ -14,13 +14,13 @@ class TwoAxisLevitator(EMPlant):
     n_e = 2
     x_e_sign = 1.0
 
-    def __init__(self, variable_mass: bool = False):
+    def __init__(self, variable_mass: bool = False, damped: bool = False):
         self.M = np.array([[2.0, 0.3], [0.3, 1.0]])
         self.K = np.array([[3.0, -1.0], [-1.0, 2.0]])
         self.b = np.array([1.0, 0.5])
         self.psi0 = np.array([5.0, 4.0])
         self.beta = np.array([[1.0, 0.2], [0.3, 0.8]])
-        self.R_m = np.diag([0.1, 0.0])
+        self.R_m = np.diag([0.1, 0.05 if damped else 0.0])     # damped: Assumption 1 (R_m > 0)
         self.J_e = np.array([[0.0, 0.5], [-0.5, 0.0]])
         self.R_e = np.diag([1.0, 2.0])
         self.G_e = np.array([[1.0, 0.2], [0.0, 0.5]])

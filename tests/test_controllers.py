@@ -1,0 +1,208 @@
+"""The four controllers: matching identity (closed loop = target pH system), set-points, the paper's
+explicit Section 7 formulas, the errata, and refusal of invalid parameters."""
+import numpy as np
+import pytest
+
+from components import closed_loop, differentiation
+from components.maglev import D_d_from_paper, Maglev
+from components.mems import MEMS, R_e_bar_from_rbar_e
+from components.proposition1 import Proposition1
+from components.proposition2 import Proposition2
+from components.references import Constant, Sinusoid, SmoothStep
+from components.theorem2 import Theorem2
+from components.theorem3 import Theorem3
+from tests.plants_for_tests import TwoAxisLevitator, VectorSinusoid
+
+MAGLEV_REF = Sinusoid(offset=0.0025, amplitude=0.001, omega=5.0)
+TWO_AXIS_REF = VectorSinusoid([0.1, 0.2], [0.05, 0.03], [2.0, 3.0], [0.0, 1.0])
+RBAR = R_e_bar_from_rbar_e(100.0)
+
+
+def cases():
+    mems, mag, two, two_damped = MEMS(), Maglev(), TwoAxisLevitator(), TwoAxisLevitator(damped=True)
+    D1 = np.array([[0.03, -0.01], [0.0, 0.02]])          # satisfies eq. (pHcondition) strictly for two_damped
+    D2 = np.array([[0.03, 0.0], [0.01, 0.0]])            # R_m = diag(0.1, 0): second column must vanish
+    return {
+        "MEMS Prop1": (Proposition1(mems, 3e-5, RBAR, D_d=1e-4), None, 1),
+        "MEMS Thm2 sinusoid": (Theorem2(mems, RBAR, D_d=-0.4), Sinusoid(), 0.2),
+        "MEMS Thm2 smooth step": (Theorem2(mems, RBAR, D_d=-1.0), SmoothStep(q_from=1e-5, q_to=3e-5, duration=1e-3), 1e-3),
+        "maglev Prop2": (Proposition2(mag, 0.0025, 2.82, k_c=20.0), None, 1),
+        "maglev Thm3": (Theorem3(mag, 0.82, k_c=20.0, D_d=D_d_from_paper(-1.0)), MAGLEV_REF, 2.0),
+        "2-axis Prop1": (Proposition1(two_damped, [0.1, 0.2], np.diag([1.5, 2.5]), D_d=D1), None, 1),
+        "2-axis Thm2": (Theorem2(two, np.array([[1.5, 0.2], [0.1, 2.5]]), D_d=[[0.3, -1.0], [2.0, 0.1]]), TWO_AXIS_REF, 3.0),
+        "2-axis Prop2": (Proposition2(two, [0.1, 0.2], np.diag([1.5, 2.5]), k_c=[[3.0, 0.5], [0.5, 2.0]], D_d=D2), None, 1),
+        "2-axis Thm3": (Theorem3(two, np.array([[1.5, 0.2], [0.1, 2.5]]), k_c=[[3.0, 0.5], [0.5, 2.0]], D_d=[[0.3, -1.0], [2.0, 0.1]]), TWO_AXIS_REF, 3.0),
+    }
+
+
+CASES = cases()
+
+
+def random_state_near(eta_star, rng, plant):
+    """A random admissible state: each coordinate of the target perturbed by up to 50% of its block's size
+    (the momentum block of a set-point, where p* = 0, by sqrt(m x 1 N/m) |q*|)."""
+    m = plant.n_m
+    q, p, x = plant.split(eta_star)
+    p_floor = np.sqrt(1.0 / np.diag(plant.M_inv(q))) * np.max(np.abs(q))
+    scale = np.concatenate([np.abs(q) + 0.1 * np.max(np.abs(q)),
+                            np.abs(p) + 0.1 * np.max(np.abs(p)) + p_floor,
+                            np.abs(x) + 0.1 * np.max(np.abs(x))])
+    for _ in range(100):
+        eta = eta_star + 0.5 * scale * rng.uniform(-1, 1, eta_star.size)
+        if plant.domain_margin(eta) > 0:
+            return eta
+    raise AssertionError("no admissible sample")
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_matching_identity(name):
+    """f(eta, u(eta, t)) = F_d grad H_d(eta, t) (eqs. closedloop, Eq:R-J) at 1000 random states and times,
+    grad H_d by the complex step of H_d, which is written independently of the control law."""
+    ctrl, ref, horizon = CASES[name]
+    rng = np.random.default_rng(abs(hash(name)) % 2**32)
+    F_d = ctrl.F_d()
+    worst = 0.0
+    for _ in range(1000):
+        jet = None if ref is None else ref.jet(rng.uniform(0, horizon))
+        eta = random_state_near(ctrl.target(jet), rng, ctrl.plant)
+        lhs = ctrl.plant.f(eta, ctrl.u(eta, jet))
+        gH = differentiation.gradient(lambda e: ctrl.H_d(e, jet), eta, scale=np.abs(eta) + 1e-30)
+        rhs = F_d @ gH
+        # relative to the size of the terms that make up each row of F_d grad H_d
+        size = np.abs(F_d) @ np.abs(gH)
+        assert np.all(size > 0) and np.all(np.isfinite(lhs))
+        worst = max(worst, float(np.max(np.abs(lhs - rhs) / size)))
+    assert worst < 1e-10, worst
+
+
+@pytest.mark.parametrize("name", ["MEMS Prop1", "maglev Prop2", "2-axis Prop1", "2-axis Prop2"])
+def test_regulation_set_point_is_a_strict_minimum_of_H_d(name):
+    """grad H_d(eta_d) = 0 (eq. gradHd), H_d(eta_d) = 0 (eq. Hd) and hess H_d(eta_d) > 0 (phi12 / Phic22)."""
+    ctrl = CASES[name][0]
+    eta_d = ctrl.target()
+    scale = np.abs(eta_d) + 1e-3 * np.max(np.abs(eta_d))
+    g = differentiation.gradient(ctrl.H_d, eta_d, scale)
+    g_typical = differentiation.gradient(ctrl.H_d, eta_d * 1.01 + 0.01 * scale, scale)
+    assert np.all(np.abs(g) <= 1e-12 * np.max(np.abs(g_typical)))
+    assert ctrl.H_d(eta_d) == pytest.approx(0.0, abs=1e-14 * abs(ctrl.plant.H(eta_d)) + 1e-300)
+    H = _hessian(ctrl.H_d, eta_d, scale)
+    assert np.min(np.linalg.eigvalsh(0.5 * (H + H.T))) > 0
+
+
+def _hessian(f, x, scale):
+    """Hessian by central differences of the complex-step gradient."""
+    n = x.size
+    H = np.empty((n, n))
+    for k in range(n):
+        h = 1e-5 * scale[k]
+        e = np.zeros(n); e[k] = h
+        H[:, k] = (differentiation.gradient(f, x + e, scale) - differentiation.gradient(f, x - e, scale)) / (2 * h)
+    return H
+
+
+def test_theorem2_regulation_equals_proposition1_without_coupled_damping():
+    """With a constant jet the Theorem 2 law and Proposition 1 law coincide (both are eq. c1 with L_1)."""
+    P = MEMS()
+    p1, t2 = Proposition1(P, 3e-5, RBAR, D_d=0.0), Theorem2(P, RBAR, D_d=0.0)
+    jet = Constant(q_d=3e-5).jet(0)
+    for eta in ([15e-6, 0, 0], [2e-5, 1e-10, 3e-11], [4e-5, -2e-10, 6e-11]):
+        assert t2.u(np.array(eta), jet)[0] == pytest.approx(p1.u(np.array(eta))[0], rel=1e-12)
+
+
+def test_mems_controller_is_the_papers_eq_C1():
+    """Section 7.1, eq. (C1): u = -(r_e/rbar_e)(x_e - x_e* + L_2) - K_e r_e x_e / (c1 (q + c0)) + r_e D_d p / m,
+    L_2 = -rbar_e x_e*' - x_e* / (c1 (q* + c0)) + rbar_e D_d p* / m, K_e = 1/rbar_e - 1/r_e."""
+    P, ref, rbar, D = MEMS(), Sinusoid(), 100.0, -0.4
+    ctrl = Theorem2(P, R_e_bar_from_rbar_e(rbar), D_d=D)
+    rng = np.random.default_rng(3)
+    K_e = 1 / rbar - 1 / P.r_e
+    for t in rng.uniform(0, 0.2, 50):
+        jet = ref.jet(t)
+        (qs, ps, xs), (xs_dot,) = P.feasible_state(jet)[0], P.feasible_state(jet)[1]
+        L2 = -rbar * xs_dot - xs / (P.c1 * (qs + P.c0)) + rbar * D * ps / P.m
+        q, p, x = qs * (1 + 0.3 * rng.normal()), ps * (1 + 0.3 * rng.normal()), xs * (1 + 0.3 * rng.normal())
+        u_paper = -(P.r_e / rbar) * (x - xs + L2) - K_e * P.r_e * x / (P.c1 * (q + P.c0)) + P.r_e * D * p / P.m
+        assert ctrl.u(np.array([q, p, x]), jet)[0] == pytest.approx(u_paper, rel=1e-10)
+
+
+def maglev_paper_u(P, eta, jet, D_paper, R_bar, k_c, L3_sign):
+    """eq. (controlmaglv) with the paper's D_d; L3_sign = +1 is the printed L_3, -1 the corrected one."""
+    q, p, x = eta
+    (qs, ps, xs), (xs_dot,) = P.feasible_state(jet)
+    z, zs = (q / (2 * P.k) + x) / R_bar, (qs / (2 * P.k) + xs) / R_bar
+    L3 = (xs_dot + R_bar * xs**2 + k_c * zs + (1 + L3_sign * D_paper) / (2 * P.k * P.m) * ps) / k_c
+    return (-1 + D_paper) / (2 * P.k * P.m) * p - R_bar * x**2 - k_c * (z - L3) + P.R_e / P.k * (P.c - q) * x
+
+
+@pytest.mark.parametrize("D_paper,R_bar", [(0.0, 0.82), (0.0, 2.82), (-1.0, 0.82), (-1.0, 2.82)])
+def test_maglev_controller_is_eq_controlmaglv_with_corrected_L3(D_paper, R_bar):
+    """Erratum 1: the printed maglev law with the paper's D_d is eq. (tracker2) with D_d = D_paper / (2k).
+    Erratum 2: it matches only with (1 - D_d) in L_3."""
+    P = Maglev()
+    ctrl = Theorem3(P, R_bar, k_c=20.0, D_d=D_d_from_paper(D_paper))
+    rng = np.random.default_rng(4)
+    for t in rng.uniform(0, 2, 50):
+        jet = MAGLEV_REF.jet(t)
+        eta = ctrl.target(jet) * (1 + 0.2 * rng.normal(size=3)) + np.array([0, 0.01 * rng.normal(), 0])
+        u = ctrl.u(eta, jet)[0]
+        assert u == pytest.approx(maglev_paper_u(P, eta, jet, D_paper, R_bar, 20.0, -1), rel=1e-10, abs=1e-12)
+
+
+def test_erratum2_printed_L3_loses_the_reference():
+    """With the printed L_3 (1 + D_d) the reference is a closed-loop trajectory only for D_d = 0:
+    started on eta*(t), x_e' differs from x_e*'."""
+    P = Maglev()
+    for D_paper, should_hold in [(0.0, True), (-1.0, False)]:
+        jet = MAGLEV_REF.jet(0.3)
+        eta_s, xs_dot = P.feasible_state(jet)
+        for sign, corrected in [(-1, True), (+1, False)]:
+            u = maglev_paper_u(P, eta_s, jet, D_paper, 0.82, 20.0, sign)
+            residual = P.f(eta_s, u)[2] - xs_dot[0]
+            on_reference = abs(residual) < 1e-10 * abs(xs_dot[0]) + 1e-12
+            assert on_reference == (corrected or should_hold), (D_paper, sign, residual)
+
+
+def test_erratum3_printed_set_point_condition_has_no_equilibrium():
+    """The printed first row of eq. (Phic21), grad_q Phi_2(z_d) = 0, puts Phi_2's minimum at z_d; then
+    grad_xe H_d(eta_d) = grad phi(x_e_d) = x_e_d^2 != 0: eta_d is not an equilibrium. Our L does it."""
+    P = Maglev()
+    ctrl = Proposition2(P, 0.0025, 2.82, k_c=20.0)
+    eta_d = ctrl.target()
+    printed = Proposition2(P, 0.0025, 2.82, k_c=20.0)
+    printed.L = printed.z(eta_d)                                   # grad_z Phi_2(z_d) = 0
+    scale = np.abs(eta_d) + 1e-6
+    assert np.abs(differentiation.gradient(printed.H_d, eta_d, scale)[2]) == pytest.approx(eta_d[2] ** 2, rel=1e-12)
+    assert np.linalg.norm(P.f(eta_d, printed.u(eta_d))) > 1e-3
+    assert np.linalg.norm(P.f(eta_d, ctrl.u(eta_d))) < 1e-14
+
+
+def test_ph_condition_is_enforced_by_the_propositions_with_the_bound():
+    P = MEMS()
+    bound = np.sqrt(4 * P.params["R_m"] / 100.0)                 # |D_d| < sqrt(4 R_m R_e_bar), eq. (pHcondition)
+    Proposition1(P, 3e-5, RBAR, D_d=0.99 * bound)
+    with pytest.raises(ValueError, match=r"D_d.*pHcondition.*\|D_d\| < 0\.000148"):
+        Proposition1(P, 3e-5, RBAR, D_d=-1.0)                     # the paper's Fig. 1 value (erratum 5)
+    with pytest.raises(ValueError, match=r"D_d.*pHcondition"):
+        Proposition1(P, 3e-5, RBAR, D_d=bound)                   # strict inequality in Proposition 1
+    with pytest.raises(ValueError, match=r"D_d.*pHcondition.*\|D_d\| <= 0\b"):
+        Proposition2(Maglev(), 0.0025, 2.82, D_d=-0.1)           # R_m = 0: no coupled damping keeps pH
+    Theorem2(P, RBAR, D_d=-1.0)                                  # Theorems 2, 3 need no pH condition
+    Theorem3(Maglev(), 0.82, D_d=-1.0)
+    assert closed_loop.ph_margin(P.R_m, RBAR, np.array([[-1.0]])) < 0
+
+
+@pytest.mark.parametrize("make,param", [
+    (lambda: Theorem2(MEMS(), -0.01), "R_e_bar"),
+    (lambda: Theorem2(MEMS(), RBAR, D_d=float("nan")), "D_d"),
+    (lambda: Theorem2(MEMS(), RBAR, D_d=[1.0, 2.0]), "D_d"),
+    (lambda: Theorem3(Maglev(), 0.82, k_c=0.0), "k_c"),
+    (lambda: Theorem3(Maglev(), 0.82, k_c=-3.0), "k_c"),
+    (lambda: Theorem3(Maglev(), 0.0), "R_e_bar"),
+    (lambda: Proposition2(Maglev(), 0.0025, "x"), "R_e_bar"),
+    (lambda: Proposition1(MEMS(), 3e-5, RBAR, W=-1.0), "W"),
+    (lambda: Proposition2(Maglev(), 0.006, 2.82), "q < c"),
+    (lambda: Proposition1(MEMS(), -1e-6, RBAR), "infeasible"),
+])
+def test_invalid_controller_parameters_are_refused_by_name(make, param):
+    with pytest.raises(ValueError, match=param):
+        make()

@@ -53,6 +53,9 @@ class EMPlant:
         """Inverse mass-inertia matrix M(q)^-1 (n_m x n_m)."""
         raise NotImplementedError
 
+    constant_mass: bool = True
+    """True when M does not depend on q (then dM_inv and d2M_inv are zero and are skipped)."""
+
     def dM_inv(self, q: np.ndarray) -> np.ndarray:
         """d M^-1 / d q_k stacked on axis 0 (n_m x n_m x n_m). Zero for a constant mass."""
         return np.zeros((self.n_m, self.n_m, self.n_m))
@@ -105,12 +108,16 @@ class EMPlant:
 
     def F(self) -> np.ndarray:
         """Open-loop structure matrix J - R of eq. (open-loop elecmech)."""
-        m, e = self.n_m, self.n_e
+        cached = self.__dict__.get("_F")
+        if cached is not None:
+            return cached
+        m = self.n_m
         F = np.zeros((self.n, self.n))
         F[:m, m:2 * m] = np.eye(m)
         F[m:2 * m, :m] = -np.eye(m)
         F[m:2 * m, m:2 * m] = -self.R_m
         F[2 * m:, 2 * m:] = self.J_e - self.R_e
+        self._F = F                        # plant matrices are fixed after construction
         return F
 
     def g(self) -> np.ndarray:
@@ -136,10 +143,9 @@ class EMPlant:
     def grad_H(self, eta: np.ndarray) -> np.ndarray:
         """grad H = (grad_q H, M^-1 p, Psi x_e)."""
         q, p, x_e = self.split(eta)
-        dMi, dPsi = self.dM_inv(q), self.dPsi(q)
-        grad_q = (self.grad_V(q)
-                  + 0.5 * np.einsum("i,kij,j->k", p, dMi, p)
-                  + 0.5 * np.einsum("i,kij,j->k", x_e, dPsi, x_e))
+        grad_q = self.grad_V(q) + 0.5 * np.einsum("i,kij,j->k", x_e, self.dPsi(q), x_e)
+        if not self.constant_mass:
+            grad_q = grad_q + 0.5 * np.einsum("i,kij,j->k", p, self.dM_inv(q), p)
         return np.concatenate([grad_q, self.M_inv(q) @ p, self.Psi(q) @ x_e])
 
     def hess_H(self, eta: np.ndarray) -> np.ndarray:
@@ -185,7 +191,7 @@ class EMPlant:
         -1/2 Psi'(q) x_e^2 = F* has the real root x_e* = s sqrt(2 F* / (-Psi'(q*))), s = self.x_e_sign,
         when F*/(-Psi'(q*)) > 0. Plants of other dimensions override this method.
         """
-        if self.n_m != 1 or self.n_e != 1 or np.any(self.dM_inv(jet.q)):
+        if self.n_m != 1 or self.n_e != 1 or not self.constant_mass:
             raise NotImplementedError(f"{self.name}: feasible_state needs n_m = n_e = 1 and constant M; "
                                       "override it for this plant")
         q, qd, qdd, qddd = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
@@ -206,9 +212,7 @@ class EMPlant:
         # d/dt (x_e^2) = 2 (F' g - F g') / g^2  =>  x_e' = (F' g - F g') / (x_e g^2)
         x_e_dot = (force_dot[0] * g - force[0] * g_dot) / (x_e * g * g)
         p = m * qd
-        eta = np.concatenate([q, p, [x_e]])
-        self.check_state(eta)
-        return eta, np.array([x_e_dot])
+        return np.concatenate([q, p, [x_e]]), np.array([x_e_dot])
 
     x_e_sign: float = 1.0
     """Which root of the electrical equilibrium equation the reference uses (+1: positive charge / flux)."""

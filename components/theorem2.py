@@ -31,23 +31,24 @@ class Theorem2(Controller):
 
     def L2(self, jet: Jet) -> np.ndarray:
         """Offset L_2(t) from the feasibility condition (feasibleT2)."""
+        return self._offsets(jet)[1]
+
+    def _offsets(self, jet: Jet) -> tuple[np.ndarray, np.ndarray]:
+        """(center, L_2): Theta_1 = 1/2 (x_e - center)^T W (x_e - center), center = x_e* - L_2."""
         plant = self.plant
         eta_s, xe_dot_s = plant.feasible_state(jet)
         q_s, p_s, x_s = plant.split(eta_s)
         inner = np.linalg.solve(self.JR_bar, xe_dot_s - self.D_d @ plant.M_inv(q_s) @ p_s)
-        return np.linalg.solve(self.W, inner - plant.Psi(q_s) @ x_s)
-
-    def center(self, jet: Jet) -> np.ndarray:
-        """Minimiser x_e* - L_2(t) of Theta_1(., t)."""
-        return self.plant.feasible_state(jet)[0][2 * self.plant.n_m:] - self.L2(jet)
+        L2 = np.linalg.solve(self.W, inner - plant.Psi(q_s) @ x_s)          # eq. (feasibleT2)
+        return x_s - L2, L2
 
     def u(self, eta, jet):
         x_e = self.plant.split(eta)[2]
-        return law_c1(self, eta, self.W @ (x_e - self.center(jet)))          # eq. (u1-track)
+        return law_c1(self, eta, self.W @ (x_e - self._offsets(jet)[0]))     # eq. (u1-track)
 
     def H_d(self, eta, jet):
         x_e = self.plant.split(eta)[2]
-        return self.plant.H(eta) + quadratic(x_e, self.center(jet), self.W)   # eq. (HdClass3)
+        return self.plant.H(eta) + quadratic(x_e, self._offsets(jet)[0], self.W)   # eq. (HdClass3)
 
     def target(self, jet):
         return self.plant.feasible_state(jet)[0]

@@ -25,6 +25,7 @@ class TwoAxisLevitator(EMPlant):
         self.R_e = np.diag([1.0, 2.0])
         self.G_e = np.array([[1.0, 0.2], [0.0, 0.5]])
         self.variable_mass = variable_mass
+        self.constant_mass = not variable_mass
         self.mu = 0.4
 
     Gamma = property(lambda self: self.beta / 2.0)

@@ -206,3 +206,34 @@ def test_ph_condition_is_enforced_by_the_propositions_with_the_bound():
 def test_invalid_controller_parameters_are_refused_by_name(make, param):
     with pytest.raises(ValueError, match=param):
         make()
+
+
+@pytest.mark.parametrize("name", ["MEMS Thm2 sinusoid", "MEMS Thm2 smooth step", "maglev Thm3", "2-axis Thm2", "2-axis Thm3"])
+def test_reference_is_a_closed_loop_trajectory(name):
+    """Feasibility (eqs. feasibleT2, L2): on eta*(t) the closed-loop vector field is d eta*/dt =
+    (q*', M q*'', x_e*')."""
+    ctrl, ref, horizon = CASES[name]
+    plant = ctrl.plant
+    for t in np.linspace(0.05, 0.95, 7) * horizon:
+        jet = ref.jet(t)
+        eta_s, xe_dot = plant.feasible_state(jet)
+        M = np.linalg.inv(plant.M_inv(jet.q))
+        expected = np.concatenate([jet.qd, M @ jet.qdd, xe_dot])
+        got = plant.f(eta_s, ctrl.u(eta_s, jet))
+        scale = np.abs(plant.F()) @ np.abs(plant.grad_H(eta_s)) + np.abs(expected)
+        assert np.all(np.abs(got - expected) <= 1e-10 * scale), (got, expected)
+
+
+def test_erratum8_printed_L2_without_G_e_loses_the_reference():
+    """eq. (L2) as printed (grad_z Theta_2 without G_e) is right only for G_e = I: on the two-axis plant
+    (G_e != I) the offset it gives does not keep eta* a closed-loop trajectory."""
+    ctrl, ref, _ = CASES["2-axis Thm3"]
+    plant, jet = ctrl.plant, ref.jet(0.7)
+    eta_s, xe_dot = plant.feasible_state(jet)
+    q_s, p_s, x_s = plant.split(eta_s)
+    printed_rhs = ((ctrl.D_d - ctrl.Gamma.T) @ plant.M_inv(q_s) @ p_s + ctrl.JR_bar @ plant.grad_phi(x_s) - xe_dot)
+    L3_printed = ctrl.z(eta_s) - np.linalg.solve(ctrl.K_c, printed_rhs)
+    from components.proposition2 import law_u2
+    u_printed = law_u2(ctrl, eta_s, ctrl.K_c @ (ctrl.z(eta_s) - L3_printed))
+    assert np.linalg.norm(plant.f(eta_s, u_printed)[4:] - xe_dot) > 1e-3 * np.linalg.norm(xe_dot)
+    assert np.linalg.norm(plant.f(eta_s, ctrl.u(eta_s, jet))[4:] - xe_dot) < 1e-10 * np.linalg.norm(xe_dot) + 1e-12

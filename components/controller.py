@@ -74,6 +74,25 @@ class Controller:
         """Desired Hamiltonian; written independently of u, so grad H_d can check the matching."""
         raise NotImplementedError
 
+    def hess_H_d(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
+        """Hessian of H_d (analytic; the closed-loop Jacobian is F_d hess H_d)."""
+        raise NotImplementedError
+
     def target(self, jet: Jet | None = None) -> np.ndarray:
         """The state the closed loop should be at: eta_d (regulation) or eta*(t) (tracking)."""
         raise NotImplementedError
+
+    def _embed_xe(self, block: np.ndarray) -> np.ndarray:
+        """An n_e x n_e block placed at the x_e-x_e position of an n x n matrix."""
+        out = np.zeros((self.plant.n, self.plant.n))
+        out[2 * self.plant.n_m:, 2 * self.plant.n_m:] = block
+        return out
+
+
+def hess_H_mech(plant: EMPlant, eta: np.ndarray) -> np.ndarray:
+    """Hessian of H_1(q, p) = 1/2 p^T M^-1 p + V(q) as an n x n matrix (zero x_e rows and columns)."""
+    q, p, _ = plant.split(eta)
+    h = plant.hess_H(np.concatenate([q, p, np.zeros(plant.n_e)]))
+    h[2 * plant.n_m:, :] = 0.0
+    h[:, 2 * plant.n_m:] = 0.0
+    return h

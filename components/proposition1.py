@@ -56,5 +56,8 @@ class Proposition1(Controller):
         x_e = self.plant.split(eta)[2]
         return self.plant.H(eta) + quadratic(x_e, self.center, self.W) + self.c1
 
+    def hess_H_d(self, eta, jet=None):
+        return self.plant.hess_H(eta) + self._embed_xe(self.W)
+
     def target(self, jet=None):
         return self.eta_d

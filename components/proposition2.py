@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import closed_loop
-from .controller import Controller, as_matrix, check_positive_definite, quadratic
+from .controller import Controller, as_matrix, check_positive_definite, hess_H_mech, quadratic
 from .ph_plant import EMPlant
 
 
@@ -55,6 +55,15 @@ class Proposition2(Controller):
         q, p, x_e = self.plant.split(eta)                                   # eq. (energyrug2)
         return (self.plant.H_mech(q, p) + quadratic(self.z(eta), self.L, self.K_c)
                 + self.plant.phi(x_e) + self.c2)
+
+    def hess_H_d(self, eta, jet=None):
+        """hess H_1 + hess phi (x_e block) + C^T K_c C with C = dz/deta = [A Gamma^T, 0, A]."""
+        m = self.plant.n_m
+        C = np.zeros((self.plant.n_e, self.plant.n))
+        C[:, :m] = self.A @ self.Gamma.T
+        C[:, 2 * m:] = self.A
+        x_e = self.plant.split(eta)[2]
+        return hess_H_mech(self.plant, eta) + self._embed_xe(self.plant.hess_phi(x_e)) + C.T @ self.K_c @ C
 
     def target(self, jet=None):
         return self.eta_d

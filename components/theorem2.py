@@ -50,5 +50,8 @@ class Theorem2(Controller):
         x_e = self.plant.split(eta)[2]
         return self.plant.H(eta) + quadratic(x_e, self._offsets(jet)[0], self.W)   # eq. (HdClass3)
 
+    def hess_H_d(self, eta, jet):
+        return self.plant.hess_H(eta) + self._embed_xe(self.W)
+
     def target(self, jet):
         return self.plant.feasible_state(jet)[0]

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .controller import Controller, as_matrix, check_positive_definite, quadratic
+from .controller import Controller, as_matrix, check_positive_definite, hess_H_mech, quadratic
 from .ph_plant import EMPlant, Jet
 from .proposition2 import law_u2
 
@@ -57,6 +57,15 @@ class Theorem3(Controller):
     def H_d(self, eta, jet):
         q, p, x_e = self.plant.split(eta)                                   # eq. (HdClass4)
         return self.plant.H_mech(q, p) + self.plant.phi(x_e) + quadratic(self.z(eta), self.L3(jet), self.K_c)
+
+    def hess_H_d(self, eta, jet=None):
+        """hess H_1 + hess phi (x_e block) + C^T K_c C with C = dz/deta = [A Gamma^T, 0, A]."""
+        m = self.plant.n_m
+        C = np.zeros((self.plant.n_e, self.plant.n))
+        C[:, :m] = self.A @ self.Gamma.T
+        C[:, 2 * m:] = self.A
+        x_e = self.plant.split(eta)[2]
+        return hess_H_mech(self.plant, eta) + self._embed_xe(self.plant.hess_phi(x_e)) + C.T @ self.K_c @ C
 
     def target(self, jet):
         return self.plant.feasible_state(jet)[0]

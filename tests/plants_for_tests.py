@@ -117,3 +117,44 @@ class VectorSinusoid:
         th = self.w * t + self.ph
         s, c = np.sin(th), np.cos(th)
         return Jet(self.o + self.a * s, self.a * self.w * c, -self.a * self.w ** 2 * s, -self.a * self.w ** 3 * c)
+
+
+class LinearPlant(EMPlant):
+    """n_m = n_e = 1 with quadratic H: V = k q^2 / 2, constant Psi = psi, constant mass m. The closed loop
+    of Theorem 2 at q_d = 0 is linear, eta' = J eta with J = F_d diag(k, 1/m, psi + 1)."""
+
+    name = "linear test plant"
+    n_m = 1
+    n_e = 1
+
+    def __init__(self, m=2.0, k=3.0, R_m=0.4, psi=5.0, R_e=1.0):
+        self.m, self.k, self.psi = m, k, psi
+        self.R_m = np.array([[R_m]])
+        self.J_e = np.zeros((1, 1))
+        self.R_e = np.array([[R_e]])
+        self.G_e = np.eye(1)
+
+    def M_inv(self, q):
+        return np.array([[1.0 / self.m]])
+
+    def V(self, q):
+        return 0.5 * self.k * q[0] ** 2
+
+    def grad_V(self, q):
+        return np.array([self.k * q[0]])
+
+    def hess_V(self, q):
+        return np.array([[self.k]])
+
+    def Psi(self, q):
+        return np.array([[self.psi + 0.0 * q[0]]])
+
+    def dPsi(self, q):
+        return np.zeros((1, 1, 1))
+
+    def d2Psi(self, q):
+        return np.zeros((1, 1, 1, 1))
+
+    def feasible_state(self, jet):
+        """Only q* = 0 at rest is feasible (no electromechanical force); x_e* = 0."""
+        return np.array([jet.q[0], self.m * jet.qd[0], 0.0]), np.zeros(1)

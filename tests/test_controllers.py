@@ -237,3 +237,17 @@ def test_erratum8_printed_L2_without_G_e_loses_the_reference():
     u_printed = law_u2(ctrl, eta_s, ctrl.K_c @ (ctrl.z(eta_s) - L3_printed))
     assert np.linalg.norm(plant.f(eta_s, u_printed)[4:] - xe_dot) > 1e-3 * np.linalg.norm(xe_dot)
     assert np.linalg.norm(plant.f(eta_s, ctrl.u(eta_s, jet))[4:] - xe_dot) < 1e-10 * np.linalg.norm(xe_dot) + 1e-12
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_hess_H_d_matches_the_derivative_of_grad_H_d(name):
+    ctrl, ref, horizon = CASES[name]
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        jet = None if ref is None else ref.jet(rng.uniform(0, horizon))
+        eta = random_state_near(ctrl.target(jet), rng, ctrl.plant)
+        scale = np.abs(eta) + 1e-3 * np.max(np.abs(eta))
+        H_num = _hessian(lambda e: ctrl.H_d(e, jet), eta, scale)
+        H = ctrl.hess_H_d(eta, jet)
+        entry_scale = np.sqrt(np.outer(np.abs(np.diag(H)), np.abs(np.diag(H))))    # sqrt(|H_ii H_jj|)
+        assert np.all(np.abs(H - H_num) <= 1e-6 * entry_scale + 1e-6 * np.abs(H)), (H, H_num)

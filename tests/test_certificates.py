@@ -96,3 +96,10 @@ def test_inconclusive_when_no_constant_metric_covers_a_large_neighbourhood():
     cert = certify(Theorem2(MEMS(), RBAR, D_d=0.0), Constant(q_d=3e-5), eta0=[15e-6, 0.0, 0.0], refine=False)
     assert cert.check("Lemma 1: constant contraction metric (eq. crate)").verdict == INCONCLUSIVE
     assert cert.rate is None
+
+
+def test_measured_decay_rate_of_a_known_signal():
+    from emcosim.studies import measured_decay_rate
+    t = np.linspace(0, 5, 5001)
+    e = np.column_stack([np.exp(-0.7 * t) * np.cos(9 * t), 1e-3 * np.exp(-0.7 * t) * np.sin(9 * t), np.exp(-5 * t)])
+    assert measured_decay_rate(t, e, np.array([1.0, 1e-3, 1.0])) == pytest.approx(0.7, rel=0.02)

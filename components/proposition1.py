@@ -12,7 +12,7 @@ import numpy as np
 
 from . import closed_loop
 from .controller import Controller, as_matrix, check_positive_definite, quadratic
-from .ph_plant import EMPlant, Jet
+from .ph_plant import EMPlant
 
 
 def law_c1(controller: Controller, eta: np.ndarray, grad_Phi: np.ndarray) -> np.ndarray:

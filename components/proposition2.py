@@ -19,7 +19,32 @@ from .controller import Controller, as_matrix, check_positive_definite, hess_H_m
 from .ph_plant import EMPlant
 
 
-class Proposition2(Controller):
+class ZShaped(Controller):
+    """What Proposition 2 and Theorem 3 share: Gamma from the plant (Assumption 2/4), the weight K_c
+    of the quadratic Phi_2 / Theta_2 in z, the map z(eta) of eq. (z), and hess H_d."""
+
+    def __init__(self, plant: EMPlant, R_e_bar, k_c, D_d):
+        super().__init__(plant, R_e_bar, D_d, plant.Gamma)
+        self.K_c = as_matrix(k_c, (plant.n_e, plant.n_e), "k_c", self.name)
+        check_positive_definite(self.K_c, "k_c", self.name)
+        self.A = -plant.G_e.T @ np.linalg.inv(self.JR_bar).T                # z = A (Gamma^T q + x_e)
+
+    def z(self, eta):
+        """eq. (z)."""
+        q, _, x_e = self.plant.split(eta)
+        return self.A @ (self.Gamma.T @ q + x_e)
+
+    def hess_H_d(self, eta, jet=None):
+        """hess H_1 + hess phi (x_e block) + C^T K_c C with C = dz/deta = [A Gamma^T, 0, A]."""
+        m = self.plant.n_m
+        C = np.zeros((self.plant.n_e, self.plant.n))
+        C[:, :m] = self.A @ self.Gamma.T
+        C[:, 2 * m:] = self.A
+        x_e = self.plant.split(eta)[2]
+        return hess_H_mech(self.plant, eta) + self._embed_xe(self.plant.hess_phi(x_e)) + C.T @ self.K_c @ C
+
+
+class Proposition2(ZShaped):
     """Set-point regulation for Assumption 2 plants (e.g. the maglev).
 
     The plant supplies Gamma and phi, grad_phi, hess_phi of Assumption 2.
@@ -32,21 +57,13 @@ class Proposition2(Controller):
     name = "Proposition 2"
 
     def __init__(self, plant: EMPlant, q_d, R_e_bar, k_c=20.0, D_d=0.0):
-        super().__init__(plant, R_e_bar, D_d, plant.Gamma)
+        super().__init__(plant, R_e_bar, k_c, D_d)
         closed_loop.check_ph_condition(plant.R_m, self.R_e_bar, self.D_d, strict=False, owner=self.name)
-        self.K_c = as_matrix(k_c, (plant.n_e, plant.n_e), "k_c", self.name)
-        check_positive_definite(self.K_c, "k_c", self.name)
-        self.A = -plant.G_e.T @ np.linalg.inv(self.JR_bar).T                # z = A (Gamma^T q + x_e)
         self.eta_d = plant.equilibrium(q_d)
         q_d, _, x_ed = plant.split(self.eta_d)
         z_d = self.z(self.eta_d)
         self.L = z_d - np.linalg.solve(self.K_c, self.G_inv @ self.JR_bar @ plant.grad_phi(x_ed))
         self.c2 = -(plant.V(q_d) + quadratic(z_d, self.L, self.K_c) + plant.phi(x_ed))
-
-    def z(self, eta):
-        """eq. (z)."""
-        q, _, x_e = self.plant.split(eta)
-        return self.A @ (self.Gamma.T @ q + x_e)
 
     def u(self, eta, jet=None):
         return law_u2(self, eta, self.K_c @ (self.z(eta) - self.L))
@@ -55,15 +72,6 @@ class Proposition2(Controller):
         q, p, x_e = self.plant.split(eta)                                   # eq. (energyrug2)
         return (self.plant.H_mech(q, p) + quadratic(self.z(eta), self.L, self.K_c)
                 + self.plant.phi(x_e) + self.c2)
-
-    def hess_H_d(self, eta, jet=None):
-        """hess H_1 + hess phi (x_e block) + C^T K_c C with C = dz/deta = [A Gamma^T, 0, A]."""
-        m = self.plant.n_m
-        C = np.zeros((self.plant.n_e, self.plant.n))
-        C[:, :m] = self.A @ self.Gamma.T
-        C[:, 2 * m:] = self.A
-        x_e = self.plant.split(eta)[2]
-        return hess_H_mech(self.plant, eta) + self._embed_xe(self.plant.hess_phi(x_e)) + C.T @ self.K_c @ C
 
     def target(self, jet=None):
         return self.eta_d

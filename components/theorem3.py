@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .controller import Controller, as_matrix, check_positive_definite, hess_H_mech, quadratic
+from .controller import quadratic
 from .ph_plant import EMPlant, Jet
-from .proposition2 import law_u2
+from .proposition2 import ZShaped, law_u2
 
 
-class Theorem3(Controller):
+class Theorem3(ZShaped):
     """Tracking for Assumption 4 plants such as the maglev.
 
     R_e_bar  desired electrical damping R_e + K_e > 0 (the closed loop needs only R_e_bar > 0)
@@ -32,15 +32,7 @@ class Theorem3(Controller):
     tracking = True
 
     def __init__(self, plant: EMPlant, R_e_bar, k_c=20.0, D_d=0.0):
-        super().__init__(plant, R_e_bar, D_d, plant.Gamma)
-        self.K_c = as_matrix(k_c, (plant.n_e, plant.n_e), "k_c", self.name)
-        check_positive_definite(self.K_c, "k_c", self.name)
-        self.A = -plant.G_e.T @ np.linalg.inv(self.JR_bar).T                # z = A (Gamma^T q + x_e)
-
-    def z(self, eta):
-        """eq. (z)."""
-        q, _, x_e = self.plant.split(eta)
-        return self.A @ (self.Gamma.T @ q + x_e)
+        super().__init__(plant, R_e_bar, k_c, D_d)
 
     def L3(self, jet: Jet) -> np.ndarray:
         """Offset L_3(t) from the feasibility condition (eq. L2); derivation in docs/derivations.md."""
@@ -57,15 +49,6 @@ class Theorem3(Controller):
     def H_d(self, eta, jet):
         q, p, x_e = self.plant.split(eta)                                   # eq. (HdClass4)
         return self.plant.H_mech(q, p) + self.plant.phi(x_e) + quadratic(self.z(eta), self.L3(jet), self.K_c)
-
-    def hess_H_d(self, eta, jet=None):
-        """hess H_1 + hess phi (x_e block) + C^T K_c C with C = dz/deta = [A Gamma^T, 0, A]."""
-        m = self.plant.n_m
-        C = np.zeros((self.plant.n_e, self.plant.n))
-        C[:, :m] = self.A @ self.Gamma.T
-        C[:, 2 * m:] = self.A
-        x_e = self.plant.split(eta)[2]
-        return hess_H_mech(self.plant, eta) + self._embed_xe(self.plant.hess_phi(x_e)) + C.T @ self.K_c @ C
 
     def target(self, jet):
         return self.plant.feasible_state(jet)[0]

@@ -41,7 +41,6 @@ CASES = cases()
 def random_state_near(eta_star, rng, plant):
     """A random admissible state: each coordinate of the target perturbed by up to 50% of its block's size
     (the momentum block of a set-point, where p* = 0, by sqrt(m x 1 N/m) |q*|)."""
-    m = plant.n_m
     q, p, x = plant.split(eta_star)
     p_floor = np.sqrt(1.0 / np.diag(plant.M_inv(q))) * np.max(np.abs(q))
     scale = np.concatenate([np.abs(q) + 0.1 * np.max(np.abs(q)),

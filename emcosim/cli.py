@@ -1,12 +1,169 @@
-"""Command line interface `emcosim`."""
+"""Command line interface `emcosim`: run, export and inspect SSP scenarios.
+
+    emcosim run SCENARIO [--stop-time T] [--step-size H] [--set component.variable=value ...]
+                         [--output results.csv] [--plot results.png]
+    emcosim export SCENARIO -o loop.fmu
+    emcosim info [SCENARIO ...]
+
+SCENARIO is a scenario name (a folder of scenarios/), a folder holding SystemStructure.ssd, an
+.ssd file or an .ssp archive. Errors are reported on one line; the exit status is then 1 (2 for
+a usage error).
+"""
 from __future__ import annotations
 
+import argparse
 import sys
+from pathlib import Path
+
+from .errors import ScenarioError, SimulationError
+
+
+def scenario_dirs() -> list[Path]:
+    """Where bare scenario names are looked up: ./scenarios, then the project's scenarios/."""
+    dirs = [Path.cwd() / "scenarios", Path(__file__).resolve().parents[1] / "scenarios"]
+    return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
 def main(argv: list[str] | None = None) -> int:
-    print("emcosim: the co-simulation commands arrive with the scenario issue", file=sys.stderr)
-    return 2
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except ScenarioError as exc:                   # includes SimulationError
+        print(f"emcosim: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:                        # e.g. `emcosim info | head`
+        return 0
+    except KeyboardInterrupt:
+        print("emcosim: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:                       # anything unforeseen: still one line
+        print(f"emcosim: error: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="emcosim", description="Co-simulation of SSP scenarios of FMI 2.0 FMUs.")
+    sub = p.add_subparsers(dest="command")
+
+    run = sub.add_parser("run", help="run a scenario and record its variables to CSV")
+    run.add_argument("scenario")
+    run.add_argument("--stop-time", type=float, help="stop time [s] (default: the scenario's)")
+    run.add_argument("--step-size", type=float, help="communication step [s] (default: the scenario's)")
+    run.add_argument("--set", action="append", default=[], metavar="COMPONENT.VARIABLE=VALUE",
+                     help="override a parameter or input start value (repeatable)")
+    run.add_argument("--output", "-o", help="results CSV (default: SCENARIO_NAME.csv)")
+    run.add_argument("--plot", help="also plot the recorded variables to this image file")
+    run.add_argument("--record", help="comma-separated full variable names to record (default: every connector)")
+    run.add_argument("--tolerance", type=float,
+                     help="error-controlled communication steps (step doubling with FMU-state rollback); "
+                          "the step size is then the maximum step")
+    run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
+    run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
+    run.set_defaults(func=cmd_run)
+
+    export = sub.add_parser("export", help="export a scenario as a closed-loop container FMU")
+    export.add_argument("scenario")
+    export.add_argument("-o", "--output", required=True, help="the .fmu to write")
+    export.add_argument("--step-size", type=float, help="fixed step of the container (default: the scenario's)")
+    export.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
+    export.set_defaults(func=cmd_export)
+
+    info = sub.add_parser("info", help="list the scenarios and their FMUs with their variables")
+    info.add_argument("scenario", nargs="*", help="scenarios to describe (default: all in scenarios/)")
+    info.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
+    info.set_defaults(func=cmd_info)
+    return p
+
+
+def _read(name: str, fmu_dir: str | None = None):
+    from .ssd import read_scenario
+    return read_scenario(name, scenario_dirs(), fmu_dir=fmu_dir)
+
+
+def cmd_run(args) -> int:
+    from .master import simulate
+    from .progress import ProgressBar
+    from .results import plot
+
+    scenario = _read(args.scenario, args.fmu_dir)
+    start_values = {}
+    for item in args.set:
+        name, sep, value = item.partition("=")
+        if not sep or "." not in name:
+            raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
+        start_values[name.strip()] = value.strip()
+    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else None
+    output = Path(args.output or f"{scenario.name}.csv")
+    bar = None if args.no_progress else ProgressBar(scenario.name)
+    failure = None
+    try:
+        result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
+                          start_values=start_values, record=record, progress=bar, tolerance=args.tolerance)
+    except SimulationError as exc:
+        failure, result = exc, exc.result
+    finally:
+        if bar is not None:
+            bar.close()
+    if result is not None and len(result):
+        result.write_csv(output)
+        if args.plot:
+            plot(result, args.plot, title=scenario.name)
+    if failure is not None:
+        saved = f"; {len(result)} rows up to t = {result.time[-1]:.9g} s saved to {output}" if result and len(result) else ""
+        raise SimulationError(f"{failure}{saved}")
+    print(f"{scenario.name}: {len(result)} rows to {output}" + (f", plot {args.plot}" if args.plot else ""))
+    return 0
+
+
+def cmd_export(args) -> int:
+    from .container import export_container
+
+    scenario = _read(args.scenario, args.fmu_dir)
+    export_container(scenario, Path(args.output), step_size=args.step_size)
+    print(f"{scenario.name}: container FMU written to {args.output}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from fmpy import read_model_description
+
+    from .ssd import SSD_NAME
+
+    if args.scenario:
+        paths = args.scenario
+    else:
+        paths = sorted(str(d) for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file())
+        if not paths:
+            raise ScenarioError("no scenarios found (looked in ./scenarios and the project's scenarios/)")
+    fmus = {}
+    print("Scenarios:")
+    for path in paths:
+        s = _read(path, args.fmu_dir)
+        h = f"{s.step_size:g} s" if s.step_size else "?"
+        stop = f"{s.stop_time:g} s" if s.stop_time is not None else "?"
+        print(f"  {s.name}: stop time {stop}, step {h}")
+        if s.description:
+            print(f"      {s.description}")
+        for c in s.components:
+            print(f"      {c.name}: {c.source.name}" + (f" ({c.description})" if c.description else ""))
+            fmus.setdefault(c.source, c.name)
+    print("FMUs:")
+    for source in fmus:
+        if not source.is_file():
+            print(f"  {source}: not built (run build.py)")
+            continue
+        md = read_model_description(str(source), validate=False)
+        print(f"  {source.name}: {md.modelName}, FMI {md.fmiVersion}" + (f" - {md.description}" if md.description else ""))
+        for v in md.modelVariables:
+            unit = f" [{v.unit or (v.declaredType.unit if v.declaredType else '')}]" if (v.unit or v.declaredType) else ""
+            start = f" = {v.start}" if v.start is not None else ""
+            desc = f"  {v.description}" if v.description else ""
+            print(f"      {v.causality:<10} {v.type:<8} {v.name}{unit}{start}{desc}")
+    return 0
 
 
 if __name__ == "__main__":

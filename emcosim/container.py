@@ -1,0 +1,116 @@
+"""Export a scenario as one closed-loop FMU with fmpy's container FMU (fmpy.container_fmu).
+
+The container holds the scenario's FMUs and connections; its variables are
+- `time` (independent; the container's value references start after it),
+- every parameter value of the scenario's .ssv files, as a parameter "component.variable" whose
+  start is the .ssv value (so `fmpy simulate loop.fmu --start-values controller.D_d -0.4` works),
+- every output connector, as an output "component.variable".
+The container runs with the fixed step given here and `parallelDoStep=False` (parallel stepping
+aborts the process): it steps the components one after the other and propagates their outputs
+through the connections at communication points. For a loop of state-output plants and static
+controllers whose outputs are computed on demand, this gives the same trajectory as our master
+(measured: tests/test_master.py and tests/test_scenarios.py compare them); with parallel (Jacobi)
+stepping a feedthrough controller would act one step late, as in libcosim.
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+import uuid
+from pathlib import Path
+
+from fmpy import read_model_description
+from fmpy.container_fmu import Configuration
+from fmpy.container_fmu.cli import create_container_fmu
+from fmpy.container_fmu.config import Component, Connection
+from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
+
+from .errors import ScenarioError
+from .master import check_connections, load, parameter_values
+from .ssd import Scenario
+
+
+def export_container(scenario: Scenario, filename: Path, step_size: float | None = None) -> Path:
+    """Write `scenario` as a container FMU to `filename` and return it."""
+    h = scenario.step_size if step_size is None else step_size
+    if h is None or not h > 0:
+        raise ScenarioError(f"{scenario.path}: the container needs a positive fixed step (give --step-size)")
+    instances = load(scenario)
+    connections = check_connections(scenario, instances)
+    for c in connections:
+        if c.factor != 1.0 or c.offset != 0.0:
+            raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: the container FMU "
+                                "cannot apply linear transformations")
+    parameters = parameter_values(scenario, instances, {})
+    components = {name: Component(name=name, filename=inst.path, modelDescription=inst.model_description)
+                  for name, inst in instances.items()}
+    if len({inst.path.stem for inst in instances.values()}) != len(instances):
+        # the container unpacks each FMU to resources/<file stem>: one instance per FMU file
+        raise ScenarioError(f"{scenario.path}: the container FMU needs a distinct FMU file per component")
+
+    variables = [ModelVariable(type="Real", variability="continuous", causality="independent", name="time")]
+    mappings = {}
+    for name, inst in instances.items():
+        for var, value in parameters[name]:
+            v = ModelVariable(type=var.type, variability=var.variability or "fixed", causality="parameter",
+                              initial="exact", name=f"{name}.{var.name}", description=var.description,
+                              start=_literal(value))
+            variables.append(v)
+            mappings[v] = [(components[name], var)]
+    outputs = []
+    for comp in scenario.components:
+        for k in comp.connectors:
+            var = instances[comp.name].variables[k.name]
+            if var.causality != "output":
+                continue
+            v = ModelVariable(type=var.type, variability="continuous", causality="output",
+                              initial="calculated", name=f"{comp.name}.{k.name}", description=var.description)
+            variables.append(v)
+            mappings[v] = [(components[comp.name], var)]
+            outputs.append(Unknown(variable=v, dependencies=[]))
+    if not outputs:
+        raise ScenarioError(f"{scenario.path}: no output connectors to expose in the container")
+    md = ModelDescription(
+        fmiVersion="2.0", modelName=scenario.name, instantiationToken="{%s}" % uuid.uuid4(),
+        description=scenario.description or f"closed loop of scenario {scenario.name}",
+        generationTool="emcosim export (fmpy.container_fmu)", variableNamingConvention="structured",
+        defaultExperiment=DefaultExperiment(startTime=repr(scenario.start_time),
+                                            stopTime=None if scenario.stop_time is None else repr(scenario.stop_time),
+                                            stepSize=repr(h)),
+        coSimulation=CoSimulation(modelIdentifier="container_fmu", fixedInternalStepSize=h),
+        modelVariables=variables)
+    md.outputs = outputs
+    md.initialUnknowns = [Unknown(variable=u.variable, dependencies=[]) for u in outputs]
+    conns = []
+    for c in connections:
+        src = instances[c.start_element].variables[c.start_connector]
+        dst = instances[c.end_element].variables[c.end_connector]
+        conns.append(Connection(components[c.start_element], [_typed(src)], components[c.end_element], [_typed(dst)]))
+    config = Configuration(parallelDoStep=False, modelDescription=md, components=list(components.values()),
+                           connections=conns, variableMappings=mappings)
+    filename = Path(filename).resolve()
+    filename.parent.mkdir(parents=True, exist_ok=True)
+    if filename.exists():
+        filename.unlink()
+    workdir = Path(tempfile.mkdtemp(prefix="emcosim-container-"))
+    try:
+        (workdir / "unzip").mkdir()
+        create_container_fmu(config, workdir / "unzip", filename)     # it deletes and recreates that folder
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    read_model_description(str(filename))                               # fails loudly if unreadable
+    return filename
+
+
+def _typed(var) -> ModelVariable:
+    """A copy of a component variable whose type is named as the container's runtime expects
+    (fmpy writes connection types verbatim, and the runtime knows "Float64", not "Real")."""
+    names = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean"}
+    return ModelVariable(type=names[var.type], variability=var.variability, causality=var.causality,
+                         name=var.name, valueReference=var.valueReference)
+
+
+def _literal(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value) if isinstance(value, float) else str(value)

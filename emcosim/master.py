@@ -1,0 +1,585 @@
+"""The co-simulation master: runs an SSP scenario of FMI 2.0 co-simulation FMUs with fmpy.
+
+At each communication point t_n = t0 + n h the master
+
+1. resolves outputs in the order of the dependency graph (`dependencies.levels`): it gets the
+   outputs of level 0 (states, sources), sets the inputs they feed, gets the outputs of level 1
+   (direct feedthrough of those inputs), and so on; a static controller thus acts on the plant
+   state of the same instant, with no extra delay (Gauss-Seidel within the instant);
+2. records the chosen variables at t_n;
+3. steps every FMU from t_n to t_{n+1} with its inputs held constant.
+
+Initialization: parameter values are set after instantiation, then in initialization mode the
+outputs are propagated to the inputs in the same order, and initialization mode is left.
+
+Optionally (`tolerance`), the step is error controlled by step doubling with FMU-state rollback
+(fmi2GetFMUstate/fmi2SetFMUstate): one step of size H is compared with two of size H/2 on the
+recorded outputs; the step is accepted when the difference, scaled per variable, is below the
+tolerance, and H adapts (first-order controller, since the input hold is first order).
+
+The master knows nothing of the models: any FMI 2.0 co-simulation FMU and any SSP scenario runs.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy import calloc, free
+
+from . import dependencies
+from .errors import ScenarioError, SimulationError
+from .results import Result
+from .ssd import Scenario, parse_value
+
+C_TYPES = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
+STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+
+
+@dataclass
+class Instance:
+    """One FMU instance of the scenario."""
+
+    name: str
+    path: Path
+    model_description: object
+    variables: dict                                  # name -> fmpy ModelVariable
+    slave: FMU2Slave | None = None
+    messages: list[str] = field(default_factory=list)
+    callbacks: object = None
+
+    def variable(self, name: str, scenario: Scenario):
+        try:
+            return self.variables[name]
+        except KeyError:
+            raise ScenarioError(f"{scenario.path}: unknown variable '{self.name}.{name}' "
+                                f"(not in {self.path.name})") from None
+
+
+class _Transfer:
+    """Get a batch of values of one type from one FMU (raw fmi2Get*, preallocated arrays)."""
+
+    def __init__(self, inst: Instance, names: list[str], type_: str, getter: bool):
+        self.inst, self.names, self.type = inst, names, type_
+        vrs = [inst.variables[n].valueReference for n in names]
+        self.vr = (ctypes.c_uint * len(vrs))(*vrs)
+        self.values = (C_TYPES[type_] * len(vrs))()
+        prefix = "fmi2Get" if getter else "fmi2Set"
+        self.function = f"{prefix}{type_}"
+        self.call = inst.slave._functions[self.function]     # the raw ctypes function
+        self.n = len(vrs)
+        self.elapsed = 0.0                                     # wall time inside the FMU
+
+    def __call__(self) -> None:
+        tic = time.perf_counter()
+        status = self.call(self.inst.slave.component, self.vr, self.n, self.values)
+        self.elapsed += time.perf_counter() - tic
+        if status > 1:
+            raise FMICallException(self.function, status)
+
+
+@dataclass
+class Plan:
+    """What the master does at a communication point, precomputed."""
+
+    stages: list                     # [(gets, sets)] per level; see `_plan`
+    record: list                     # extra gets for recorded variables that are not connected outputs
+    columns: list[str]               # recorded full names
+    column_slots: list[int]          # slot of each column in the value buffer
+
+
+def simulate(scenario: Scenario, stop_time: float | None = None, step_size: float | None = None,
+             start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
+             progress: Callable[[float], None] | None = None, tolerance: float | None = None,
+             timing: dict | None = None) -> Result:
+    """Run `scenario` and return the recorded values at every communication point.
+
+    start_values: "component.variable" -> value (text or number), overriding the .ssv values.
+    record: full variable names to record; default: every connector of the scenario.
+    progress: called with the fraction done (0..1) now and then.
+    tolerance: if given, error-controlled communication steps (step doubling with rollback);
+        step_size is then the initial and the maximum step.
+    timing: if a dict is given, the master fills in the wall time of the run ('total', from
+        initialization to the end), the part spent inside FMU calls ('fmu'), the number of
+        communication steps ('steps') and FMUs ('fmus'), the time inside each FMU ('per_fmu',
+        by component name), and 'overhead_per_fmu_step' =
+        (total - fmu) / (steps * fmus): the master's own cost.
+    Raises ScenarioError for a scenario that cannot run, SimulationError (with `.result`, the
+    values recorded so far) for an FMU that fails during the run.
+    """
+    t0 = scenario.start_time
+    t_stop = scenario.stop_time if stop_time is None else stop_time
+    h = scenario.step_size if step_size is None else step_size
+    if t_stop is None or h is None:
+        raise ScenarioError(f"{scenario.path}: no stop time / step size (give --stop-time and --step-size)")
+    if not (math.isfinite(t_stop) and t_stop > t0):
+        raise ScenarioError(f"{scenario.path}: stop time {t_stop} must be after the start time {t0}")
+    if not (math.isfinite(h) and h > 0):
+        raise ScenarioError(f"{scenario.path}: step size {h} must be positive")
+    instances = load(scenario)
+    connections = check_connections(scenario, instances)
+    parameters = parameter_values(scenario, instances, start_values or {})
+    workdirs = []
+    try:
+        for inst in instances.values():
+            _instantiate(inst, workdirs)
+        plan = _plan(scenario, instances, connections, record)
+        result = Result(plan.columns)
+        slots = [0.0] * _n_slots(plan)
+        tic = time.perf_counter()
+        stepper = _Stepper(scenario, instances, plan, slots)
+        _initialize(scenario, instances, parameters, t0, t_stop, stepper)
+        if tolerance is None:
+            _run_fixed(stepper, result, t0, t_stop, h, progress)
+        else:
+            _run_adaptive(stepper, result, t0, t_stop, h, tolerance, progress)
+        if timing is not None:
+            total = time.perf_counter() - tic
+            fmu = stepper.fmu_time()
+            timing.update(total=total, fmu=fmu, steps=stepper.n_steps, fmus=len(instances),
+                          per_fmu=stepper.fmu_times(),
+                          overhead_per_fmu_step=(total - fmu) / max(1, stepper.n_steps * len(instances)))
+        return result
+    finally:
+        for inst in instances.values():
+            _free(inst)
+        for d in workdirs:
+            shutil.rmtree(d, ignore_errors=True)
+
+
+# ---- loading and checking -------------------------------------------------------------------------
+
+def load(scenario: Scenario) -> dict[str, Instance]:
+    """Read every component's modelDescription and check its connectors against it."""
+    instances = {}
+    for comp in scenario.components:
+        if "." in comp.name:
+            raise ScenarioError(f"{scenario.path}: component name '{comp.name}' must not contain '.'")
+        if not comp.source.is_file():
+            raise ScenarioError(f"{scenario.path}: component '{comp.name}': FMU not found: {comp.source}")
+        try:
+            md = read_model_description(str(comp.source), validate=False)
+        except Exception as exc:                      # fmpy raises several kinds for broken FMUs
+            raise ScenarioError(f"{comp.source}: cannot read modelDescription.xml "
+                                f"({' '.join(str(exc).split())})") from None
+        if md.coSimulation is None or not md.fmiVersion.startswith("2."):
+            raise ScenarioError(f"{comp.source}: not an FMI 2.0 co-simulation FMU")
+        inst = Instance(comp.name, comp.source, md, {v.name: v for v in md.modelVariables})
+        for conn in comp.connectors:
+            var = inst.variable(conn.name, scenario)
+            if var.type != conn.type:
+                raise ScenarioError(f"{scenario.path}: type mismatch: connector {comp.name}.{conn.name} is "
+                                    f"{conn.type} but {comp.source.name} declares {var.type}")
+            if conn.kind != var.causality and not (conn.kind == "parameter" and var.causality == "parameter"):
+                raise ScenarioError(f"{scenario.path}: causality mismatch: connector {comp.name}.{conn.name} is "
+                                    f"'{conn.kind}' but {comp.source.name} declares '{var.causality}'")
+        instances[comp.name] = inst
+    return instances
+
+
+def check_connections(scenario: Scenario, instances: dict[str, Instance]) -> list:
+    """Each connection must run from an output to an input of the same type; an input has one source."""
+    fed = {}
+    for c in scenario.connections:
+        for element in (c.start_element, c.end_element):
+            if element not in instances:
+                raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: no component '{element}'")
+        src = instances[c.start_element].variable(c.start_connector, scenario)
+        dst = instances[c.end_element].variable(c.end_connector, scenario)
+        if src.causality != "output":
+            raise ScenarioError(f"{scenario.path}: causality mismatch: connection starts at {c.start}, "
+                                f"which is '{src.causality}', not an output")
+        if dst.causality != "input":
+            raise ScenarioError(f"{scenario.path}: causality mismatch: connection ends at {c.end}, "
+                                f"which is '{dst.causality}', not an input")
+        if src.type != dst.type:
+            raise ScenarioError(f"{scenario.path}: type mismatch: connection {c.start} ({src.type}) -> "
+                                f"{c.end} ({dst.type})")
+        if src.type not in C_TYPES:
+            raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: {src.type} "
+                                "connections are not supported")
+        if (c.factor != 1.0 or c.offset != 0.0) and src.type != "Real":
+            raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: a linear "
+                                "transformation needs Real variables")
+        if c.end in fed:
+            raise ScenarioError(f"{scenario.path}: input {c.end} is fed by both {fed[c.end]} and {c.start}")
+        fed[c.end] = c.start
+    return scenario.connections
+
+
+def parameter_values(scenario: Scenario, instances: dict[str, Instance],
+                     overrides: dict[str, str | float]) -> dict[str, list[tuple[object, object]]]:
+    """(variable, value) pairs to set per component: .ssv values, then overrides, all checked."""
+    values: dict[str, dict[str, tuple[object, object]]] = {name: {} for name in instances}
+    for comp in scenario.components:
+        inst = instances[comp.name]
+        where = f"{scenario.path.parent / (comp.parameter_sources[-1] if comp.parameter_sources else scenario.path.name)}"
+        for p in comp.parameters.values():
+            if p.name not in inst.variables:
+                raise ScenarioError(f"{where}: unknown parameter '{comp.name}.{p.name}' (not in {inst.path.name})")
+            var = inst.variables[p.name]
+            _check_settable(var, f"{where}: parameter '{comp.name}.{p.name}'", inst)
+            if var.type != p.type and not (var.type == "Real" and p.type == "Integer"):
+                raise ScenarioError(f"{where}: type mismatch: parameter '{comp.name}.{p.name}' is {p.type} "
+                                    f"but {inst.path.name} declares {var.type}")
+            values[comp.name][p.name] = (var, float(p.value) if var.type == "Real" else p.value)
+    for full, raw in overrides.items():
+        comp_name, _, var_name = full.partition(".")
+        if comp_name not in instances or not var_name:
+            raise ScenarioError(f"--set {full}: no component '{comp_name}' in {scenario.path.name} "
+                                f"(components: {', '.join(instances)})")
+        inst = instances[comp_name]
+        if var_name not in inst.variables:
+            raise ScenarioError(f"--set {full}: unknown variable '{var_name}' (not in {inst.path.name})")
+        var = inst.variables[var_name]
+        _check_settable(var, f"--set {full}", inst)
+        value = parse_value(str(raw), var.type, f"--set {full}") if isinstance(raw, str) else raw
+        if var.type == "Real":
+            value = float(value)
+        values[comp_name][var_name] = (var, value)
+    return {name: list(v.values()) for name, v in values.items()}
+
+
+def _check_settable(var, where: str, inst: Instance) -> None:
+    if var.causality not in ("parameter", "input") or var.variability == "constant":
+        raise ScenarioError(f"{where}: causality mismatch: {inst.path.name} declares it "
+                            f"{var.causality} ({var.variability}); only parameters and inputs can be set")
+
+
+# ---- instantiation --------------------------------------------------------------------------------
+
+def _instantiate(inst: Instance, workdirs: list) -> None:
+    unzipdir = tempfile.mkdtemp(prefix=f"emcosim-{inst.name}-")
+    workdirs.append(unzipdir)
+    extract(str(inst.path), unzipdir)
+    md = inst.model_description
+
+    def logger(component, instance_name, status, category, message):
+        text = message.decode("utf-8", "replace") if message else ""
+        inst.messages.append(f"[{STATUS[status] if 0 <= status < 6 else status}] {text}")
+
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    inst.callbacks = callbacks                        # keep the ctypes callbacks alive
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName=inst.name)
+    try:
+        slave.instantiate(callbacks=callbacks, loggingOn=True)
+    except Exception:
+        raise ScenarioError(f"{inst.path}: component '{inst.name}' could not be instantiated"
+                            f"{_last_message(inst)}") from None
+    inst.slave = slave
+
+
+def _free(inst: Instance) -> None:
+    if inst.slave is None:
+        return
+    try:
+        inst.slave.terminate()
+    except Exception:
+        pass
+    try:
+        inst.slave.freeInstance()
+    except Exception:
+        pass
+    inst.slave = None
+
+
+def _last_message(inst: Instance) -> str:
+    errors = [m for m in inst.messages if not m.startswith("[ok]")]
+    return f": {' '.join(errors[-1].split())}" if errors else ""
+
+
+# ---- the plan of a communication point ------------------------------------------------------------
+
+def _plan(scenario: Scenario, instances: dict[str, Instance], connections, record) -> Plan:
+    depends = {}
+    for name, inst in instances.items():
+        for out, ins in dependencies.feedthrough(inst.model_description).items():
+            depends[f"{name}.{out}"] = {f"{name}.{i}" for i in ins}
+    pairs = [(c.start, c.end) for c in connections]
+    level = dependencies.levels(pairs, depends)
+    slot: dict[str, int] = {}
+
+    def slot_of(full: str) -> int:
+        return slot.setdefault(full, len(slot))
+
+    stages = []
+    for k in range(max(level.values(), default=-1) + 1):
+        outs = [o for o in level if level[o] == k]
+        gets = _batches(instances, outs, slot_of, getter=True)
+        ins = [(c, c.end) for c in connections if level[c.start] == k]
+        sets = []
+        for transfer, names in _batches(instances, [e for _, e in ins], slot_of, getter=False):
+            conn_of = {c.end: c for c, _ in ins}
+            sources = [(slot_of(conn_of[n].start), conn_of[n].factor, conn_of[n].offset) for n in names]
+            sets.append((transfer, sources))
+        stages.append((gets, sets))
+    if record is None:
+        columns = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
+                   if k.kind in ("input", "output")]
+        if not columns:
+            columns = [c.start for c in connections] + [c.end for c in connections]
+        columns = list(dict.fromkeys(columns))
+    else:
+        columns = list(record)
+    for full in columns:
+        comp_name, _, var_name = full.partition(".")
+        if comp_name not in instances or var_name not in instances[comp_name].variables:
+            raise ScenarioError(f"{scenario.path}: cannot record unknown variable '{full}'")
+        if instances[comp_name].variables[var_name].type not in C_TYPES:
+            raise ScenarioError(f"{scenario.path}: cannot record {full}: only Real, Integer and Boolean")
+    fetched = set(level) | {c.end for c in connections}
+    extra = [f for f in columns if f not in fetched]
+    record_gets = _batches(instances, extra, slot_of, getter=True)
+    return Plan(stages, record_gets, columns, [slot_of(f) for f in columns])
+
+
+def _batches(instances, fulls: list[str], slot_of, getter: bool):
+    """Group full names by (component, type) into transfers; returns [(transfer, names)]."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for full in fulls:
+        comp_name, _, var_name = full.partition(".")
+        var = instances[comp_name].variables[var_name]
+        groups.setdefault((comp_name, var.type), []).append(full)
+    out = []
+    for (comp_name, type_), names in groups.items():
+        local = [n.partition(".")[2] for n in names]
+        transfer = _Transfer(instances[comp_name], local, type_, getter)
+        transfer.slots = [slot_of(n) for n in names]
+        out.append((transfer, names))
+    return out
+
+
+def _n_slots(plan: Plan) -> int:
+    n = 0
+    for gets, sets in plan.stages:
+        for t, _ in gets:
+            n = max([n] + [s + 1 for s in t.slots])
+        for t, _ in sets:
+            n = max([n] + [s + 1 for s in t.slots])
+    for t, _ in plan.record:
+        n = max([n] + [s + 1 for s in t.slots])
+    return max([n] + [s + 1 for s in plan.column_slots])
+
+
+# ---- running --------------------------------------------------------------------------------------
+
+class _Stepper:
+    """Resolve, record and step; the hot loop of the master."""
+
+    def __init__(self, scenario: Scenario, instances: dict[str, Instance], plan: Plan, slots: list):
+        self.scenario, self.instances, self.plan, self.slots = scenario, instances, plan, slots
+        self.order = list(instances.values())
+        self.do_step = [(inst, inst.slave._functions["fmi2DoStep"], inst.slave.component) for inst in self.order]
+        self.step_time = 0.0
+        self.step_times = {inst.name: 0.0 for inst in self.order}
+        self.n_steps = 0
+        self.t = scenario.start_time
+
+    def resolve(self) -> None:
+        slots = self.slots
+        try:
+            for gets, sets in self.plan.stages:
+                for transfer, _ in gets:
+                    transfer()
+                    values = transfer.values
+                    for i, s in enumerate(transfer.slots):
+                        slots[s] = values[i]
+                for transfer, sources in sets:
+                    values = transfer.values
+                    for i, (src, factor, offset) in enumerate(sources):
+                        v = slots[src] if factor == 1.0 and offset == 0.0 else factor * slots[src] + offset
+                        values[i] = v
+                        slots[transfer.slots[i]] = v
+                    transfer()
+            for transfer, _ in self.plan.record:
+                transfer()
+                values = transfer.values
+                for i, s in enumerate(transfer.slots):
+                    slots[s] = values[i]
+        except FMICallException as exc:
+            inst = transfer.inst
+            raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in {exc.function} "
+                                  f"at t = {self.t:.9g} s{_last_message(inst)}") from None
+
+    def row(self) -> list:
+        slots = self.slots
+        return [slots[s] for s in self.plan.column_slots]
+
+    def fmu_time(self) -> float:
+        transfers = [t for gets, sets in self.plan.stages for t, _ in gets + sets] + [t for t, _ in self.plan.record]
+        return self.step_time + sum(t.elapsed for t in transfers)
+
+    def fmu_times(self) -> dict[str, float]:
+        """Wall time inside each FMU (doStep, get, set)."""
+        out = dict(self.step_times)
+        for gets, sets in self.plan.stages:
+            for transfer, _ in gets + sets:
+                out[transfer.inst.name] += transfer.elapsed
+        for transfer, _ in self.plan.record:
+            out[transfer.inst.name] += transfer.elapsed
+        return out
+
+    def step(self, t: float, h: float) -> None:
+        tic = time.perf_counter()
+        times = self.step_times
+        for inst, fn, comp in self.do_step:
+            t_in = time.perf_counter()
+            status = fn(comp, t, h, 1)
+            times[inst.name] += time.perf_counter() - t_in
+            if status > 1:
+                raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in fmi2DoStep "
+                                      f"from t = {t:.9g} s (step {h:.3g} s, status {STATUS[status] if status < 6 else status})"
+                                      f"{_last_message(inst)}")
+        self.step_time += time.perf_counter() - tic
+        self.n_steps += 1
+        self.t = t + h
+
+
+def _initialize(scenario, instances, parameters, t0, t_stop, stepper: _Stepper) -> None:
+    for name, inst in instances.items():
+        slave = inst.slave
+        try:
+            slave.setupExperiment(startTime=t0, stopTime=t_stop)
+            for var, value in parameters[name]:
+                setter = {"Real": slave.setReal, "Integer": slave.setInteger,
+                          "Boolean": slave.setBoolean, "String": slave.setString}[var.type]
+                setter([var.valueReference], [value.encode() if var.type == "String" else value])
+            slave.enterInitializationMode()
+        except FMICallException as exc:
+            raise ScenarioError(f"{inst.path.name}: component '{name}' refused {exc.function} "
+                                f"during initialization{_last_message(inst)}") from None
+    try:
+        stepper.resolve()
+    except SimulationError as exc:
+        raise ScenarioError(f"initialization: {exc}") from None
+    for name, inst in instances.items():
+        try:
+            inst.slave.exitInitializationMode()
+        except FMICallException as exc:
+            raise ScenarioError(f"{inst.path.name}: component '{name}' failed in {exc.function}"
+                                f"{_last_message(inst)}") from None
+
+
+def _run_fixed(stepper: _Stepper, result: Result, t0: float, t_stop: float, h: float, progress) -> None:
+    n_steps = max(1, math.ceil((t_stop - t0) / h - 1e-9))
+    every = max(1, n_steps // 200)
+    try:
+        for n in range(n_steps):
+            t = t0 + n * h
+            stepper.t = t
+            stepper.resolve()
+            result.append(t, stepper.row())
+            t_next = t_stop if n == n_steps - 1 else t0 + (n + 1) * h
+            stepper.step(t, t_next - t)
+            if progress is not None and n % every == 0:
+                progress((n + 1) / n_steps)
+        stepper.t = t_stop
+        stepper.resolve()
+        result.append(t_stop, stepper.row())
+    except SimulationError as exc:
+        exc.result = result
+        raise
+    if progress is not None:
+        progress(1.0)
+
+
+def _check_rollback(stepper: _Stepper, slaves, t0: float, h: float) -> None:
+    """Step, restore the state, step again: both must give the same outputs, or an FMU does not
+    really restore its state (e.g. an integrator state kept outside its registered variables)."""
+    states = [s.getFMUstate() for s in slaves]
+    stepper.t = t0
+    stepper.resolve()
+    stepper.step(t0, h)
+    stepper.resolve()
+    first = stepper.row()
+    for s, st in zip(slaves, states):
+        s.setFMUstate(st)
+    stepper.t = t0
+    stepper.resolve()
+    stepper.step(t0, h)
+    stepper.resolve()
+    second = stepper.row()
+    for s, st in zip(slaves, states):
+        s.setFMUstate(st)
+        s.freeFMUstate(st)
+    stepper.t = t0
+    stepper.n_steps -= 2
+    if first != second:
+        bad = [c for c, a, b in zip(stepper.plan.columns, first, second) if a != b]
+        raise ScenarioError(f"error-controlled steps need FMU-state rollback, but repeating a restored step "
+                            f"changes {', '.join(bad[:4])}: an FMU does not restore its full state")
+
+
+def _run_adaptive(stepper: _Stepper, result: Result, t0: float, t_stop: float, h_max: float,
+                  tolerance: float, progress) -> None:
+    """Step doubling with FMU-state rollback (see module docstring). Communication points are not
+    equidistant; each accepted point is recorded."""
+    for inst in stepper.order:
+        if not inst.model_description.coSimulation.canGetAndSetFMUstate:
+            raise ScenarioError(f"{inst.path.name}: error-controlled steps need canGetAndSetFMUstate")
+    slaves = [inst.slave for inst in stepper.order]
+    _check_rollback(stepper, slaves, t0, h_max)
+    scale = None
+    t, h = t0, h_max
+    try:
+        stepper.t = t
+        stepper.resolve()
+        row = stepper.row()
+        result.append(t, row)
+        while t < t_stop - 1e-12 * max(1.0, abs(t_stop)):
+            h = min(h, t_stop - t)
+            if scale is None:
+                scale = [abs(v) for v in row]
+            states = [s.getFMUstate() for s in slaves]
+            stepper.step(t, h)                                   # one big step
+            stepper.t = t + h
+            stepper.resolve()
+            big = stepper.row()
+            for s, st in zip(slaves, states):
+                s.setFMUstate(st)
+            stepper.t = t
+            stepper.resolve()
+            stepper.step(t, h / 2)                               # two half steps
+            stepper.t = t + h / 2
+            stepper.resolve()
+            stepper.step(t + h / 2, h / 2)
+            stepper.t = t + h
+            stepper.resolve()
+            small = stepper.row()
+            scale = [max(sc, abs(v)) for sc, v in zip(scale, small)]
+            err = max((abs(a - b) / sc for a, b, sc in zip(big, small, scale) if sc > 0), default=0.0)
+            if err <= tolerance or h <= 1e-12 * max(1.0, abs(t)):
+                for s, st in zip(slaves, states):
+                    s.freeFMUstate(st)
+                t = t + h
+                row = small
+                result.append(t, row)
+                if progress is not None:
+                    progress((t - t0) / (t_stop - t0))
+            else:
+                for s, st in zip(slaves, states):
+                    s.setFMUstate(st)
+                    s.freeFMUstate(st)
+                stepper.t = t
+                stepper.resolve()
+            # first-order local error of the half-step pair ~ err: aim at 0.5 tolerance
+            factor = 0.9 * (0.5 * tolerance / err) ** 0.5 if err > 0 else 2.0
+            h = min(h_max, h * min(2.0, max(0.2, factor)))
+    except SimulationError as exc:
+        exc.result = result
+        raise
+    if progress is not None:
+        progress(1.0)

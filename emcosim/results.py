@@ -1,0 +1,80 @@
+"""Recorded values of a run: one row per communication point, one column per full variable name."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+
+class Result:
+    """Rows of (time, values...) with column names "component.variable"."""
+
+    def __init__(self, columns: list[str]):
+        self.columns = list(columns)
+        self.rows: list[list[float]] = []
+
+    def append(self, t: float, values: list) -> None:
+        self.rows.append([t, *values])
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.array([r[0] for r in self.rows])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "time":
+            return self.time
+        try:
+            i = self.columns.index(name) + 1
+        except ValueError:
+            raise KeyError(f"no recorded variable '{name}' (recorded: {', '.join(self.columns)})") from None
+        return np.array([r[i] for r in self.rows], dtype=float)
+
+    def write_csv(self, path: str | Path) -> None:
+        write_csv(path, ["time", *self.columns], self.rows)
+
+
+def write_csv(path: str | Path, header: list[str], rows) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows([[repr(float(v)) for v in row] for row in rows])
+
+
+def read_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """Columns of a results file by name (the master's, fmpy's or libcosim's CSV)."""
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = [h.strip().strip('"') for h in next(reader)]
+        data = np.array([[float(v) for v in row] for row in reader if row], dtype=float)
+    data = data.reshape(-1, len(header))
+    return {name: data[:, i] for i, name in enumerate(header)}
+
+
+def plot(result: Result, path: str | Path, title: str = "") -> None:
+    """One panel per component, its recorded variables normalised by their maximum magnitude."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    components = list(dict.fromkeys(c.partition(".")[0] for c in result.columns))
+    fig, axes = plt.subplots(len(components), 1, sharex=True, figsize=(8, 2.2 * len(components) + 0.6),
+                             squeeze=False)
+    t = result.time
+    for ax, comp in zip(axes[:, 0], components):
+        for name in [c for c in result.columns if c.partition(".")[0] == comp]:
+            y = result[name]
+            scale = np.max(np.abs(y)) if len(y) and np.max(np.abs(y)) > 0 else 1.0
+            ax.plot(t, y / scale, label=f"{name} / {scale:.3g}")
+        ax.set_ylabel(comp)
+        ax.legend(fontsize="small", loc="best")
+        ax.grid(True, alpha=0.3)
+    axes[-1, 0].set_xlabel("time [s]")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

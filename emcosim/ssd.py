@@ -1,0 +1,379 @@
+"""Read and write SSP 1.0 System Structure Descriptions (.ssd) and parameter values (.ssv).
+
+Only the part of SSP the master uses: one flat System of FMU Components, their Connectors,
+Connections (optionally with a LinearTransformation), ParameterBindings to .ssv files (or inline
+ParameterValues), a DefaultExperiment, and the step size in the Open Simulation Platform's
+annotation (`osp:FixedStepAlgorithm baseStepSize`), which libcosim also reads.
+
+Element prefixes are written exactly as `ssd:`, `ssc:`, `ssv:`: libcosim's parser matches the
+prefixed names literally. Reading is namespace-aware. Every error is a `ScenarioError` whose
+message names the file and the element.
+"""
+from __future__ import annotations
+
+import atexit
+import math
+import re
+import shutil
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+from .errors import ScenarioError
+
+NS = {
+    "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+    "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+    "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+    "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+}
+OSP_ANNOTATION = "com.opensimulationplatform"
+SSD_NAME = "SystemStructure.ssd"
+TYPES = ("Real", "Integer", "Boolean", "String")
+
+
+@dataclass
+class Connector:
+    name: str
+    kind: str                 # input, output, parameter, calculatedParameter, inout
+    type: str                 # Real, Integer, Boolean, String
+
+
+@dataclass
+class Parameter:
+    """A parameter value of an .ssv file (or of `--set`)."""
+
+    name: str
+    type: str
+    value: float | int | bool | str
+    unit: str | None = None
+    description: str | None = None          # written as an XML comment before the parameter
+
+
+@dataclass
+class Component:
+    name: str
+    source: Path                             # the FMU, resolved against the .ssd's folder
+    connectors: list[Connector] = field(default_factory=list)
+    parameters: dict[str, Parameter] = field(default_factory=dict)
+    parameter_sources: list[str] = field(default_factory=list)   # .ssv files as written in the .ssd
+    description: str | None = None
+
+
+@dataclass
+class Connection:
+    start_element: str
+    start_connector: str
+    end_element: str
+    end_connector: str
+    factor: float = 1.0                      # ssc:LinearTransformation: end = factor * start + offset
+    offset: float = 0.0
+
+    @property
+    def start(self) -> str:
+        return f"{self.start_element}.{self.start_connector}"
+
+    @property
+    def end(self) -> str:
+        return f"{self.end_element}.{self.end_connector}"
+
+
+@dataclass
+class Scenario:
+    """A flat system of FMU components, as the master runs it."""
+
+    name: str
+    path: Path                               # the .ssd file
+    components: list[Component]
+    connections: list[Connection]
+    start_time: float = 0.0
+    stop_time: float | None = None
+    step_size: float | None = None
+    description: str | None = None
+    notes: list[str] = field(default_factory=list)   # XML comments of the .ssd (documentation)
+
+    def component(self, name: str) -> Component:
+        for c in self.components:
+            if c.name == name:
+                return c
+        raise ScenarioError(f"{self.path}: no component named '{name}' "
+                            f"(components: {', '.join(c.name for c in self.components)})")
+
+
+# ---- reading --------------------------------------------------------------------------------------
+
+def resolve_path(path: str | Path, scenario_dirs: list[Path] | None = None) -> Path:
+    """The .ssd file of a scenario given as an .ssd file, a folder holding SystemStructure.ssd,
+    an .ssp archive (extracted to a temporary folder), or a bare name looked up in scenario_dirs."""
+    p = Path(path)
+    if not p.exists() and scenario_dirs and len(p.parts) == 1:
+        for d in scenario_dirs:
+            if (d / p).exists():
+                p = d / p
+                break
+    if p.is_dir():
+        p = p / SSD_NAME
+        if not p.is_file():
+            raise ScenarioError(f"{path}: folder has no {SSD_NAME}")
+        return p
+    if not p.is_file():
+        raise ScenarioError(f"{path}: scenario not found (give an .ssd file, a scenario folder or an .ssp archive)")
+    if p.suffix == ".ssp":
+        target = Path(tempfile.mkdtemp(prefix=f"emcosim-{p.stem}-"))
+        atexit.register(shutil.rmtree, target, True)
+        try:
+            with zipfile.ZipFile(p) as z:
+                z.extractall(target)
+        except zipfile.BadZipFile as exc:
+            raise ScenarioError(f"{p}: not a valid .ssp archive ({exc})") from None
+        if not (target / SSD_NAME).is_file():
+            raise ScenarioError(f"{p}: archive has no {SSD_NAME}")
+        return target / SSD_NAME
+    return p
+
+
+def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
+                  fmu_dir: str | Path | None = None) -> Scenario:
+    """Parse a scenario (see `resolve_path`) with its .ssv parameter files. With `fmu_dir`, every
+    component's FMU is taken from that folder (same file name) instead of its `source` path."""
+    ssd = resolve_path(path, scenario_dirs)
+    root = _parse(ssd)
+    if root.tag != _q("ssd", "SystemStructureDescription"):
+        raise ScenarioError(f"{ssd}: root element is {root.tag}, expected ssd:SystemStructureDescription")
+    system = _child(root, "ssd", "System", ssd)
+    components = []
+    elements = system.find("ssd:Elements", NS)
+    for el in [] if elements is None else elements:
+        if el.tag != _q("ssd", "Component"):
+            raise ScenarioError(f"{ssd}: element {el.tag} is not supported (only ssd:Component FMUs)")
+        components.append(_read_component(el, ssd))
+    names = [c.name for c in components]
+    if len(set(names)) != len(names):
+        raise ScenarioError(f"{ssd}: duplicate component names in {names}")
+    connections = []
+    for el in system.findall("ssd:Connections/ssd:Connection", NS):
+        lt = el.find("ssc:LinearTransformation", NS)
+        connections.append(Connection(
+            _attr(el, "startElement", ssd), _attr(el, "startConnector", ssd),
+            _attr(el, "endElement", ssd), _attr(el, "endConnector", ssd),
+            factor=_float(lt.get("factor", "1"), ssd, "LinearTransformation factor") if lt is not None else 1.0,
+            offset=_float(lt.get("offset", "0"), ssd, "LinearTransformation offset") if lt is not None else 0.0))
+    scenario = Scenario(name=root.get("name") or ssd.parent.name, path=ssd, components=components,
+                        connections=connections, description=root.get("description") or system.get("description"))
+    experiment = root.find("ssd:DefaultExperiment", NS)
+    if experiment is not None:
+        scenario.start_time = _float(experiment.get("startTime", "0"), ssd, "DefaultExperiment startTime")
+        if experiment.get("stopTime") is not None:
+            scenario.stop_time = _float(experiment.get("stopTime"), ssd, "DefaultExperiment stopTime")
+        algo = experiment.find(f"ssd:Annotations/ssc:Annotation[@type='{OSP_ANNOTATION}']"
+                               "/osp:Algorithm/osp:FixedStepAlgorithm", NS)
+        if algo is not None:
+            scenario.step_size = _float(_attr(algo, "baseStepSize", ssd), ssd, "baseStepSize")
+    scenario.notes = _comments(ssd)
+    if fmu_dir is not None:
+        for comp in components:
+            comp.source = Path(fmu_dir).resolve() / comp.source.name
+    for conn in connections:                          # names must exist; FMU checks come later
+        for element, connector in ((conn.start_element, conn.start_connector), (conn.end_element, conn.end_connector)):
+            comp = scenario.component(element)
+            if comp.connectors and connector not in {c.name for c in comp.connectors}:
+                raise ScenarioError(f"{ssd}: connection {conn.start} -> {conn.end}: component '{element}' "
+                                    f"has no connector '{connector}'")
+    return scenario
+
+
+def read_parameter_set(path: Path) -> dict[str, Parameter]:
+    """Parameters of an .ssv file, by name."""
+    root = _parse(path)
+    if root.tag != _q("ssv", "ParameterSet"):
+        raise ScenarioError(f"{path}: root element is {root.tag}, expected ssv:ParameterSet")
+    return _read_parameters(root, path)
+
+
+def _read_component(el: ET.Element, ssd: Path) -> Component:
+    name = _attr(el, "name", ssd)
+    source = _attr(el, "source", ssd)
+    comp = Component(name=name, source=(ssd.parent / source).resolve(), description=el.get("description"))
+    for c in el.findall("ssd:Connectors/ssd:Connector", NS):
+        types = [t for t in TYPES if c.find(f"ssc:{t}", NS) is not None]
+        if len(types) != 1:
+            raise ScenarioError(f"{ssd}: connector {name}.{c.get('name')} needs exactly one of "
+                                f"ssc:{', ssc:'.join(TYPES)}")
+        comp.connectors.append(Connector(_attr(c, "name", ssd), _attr(c, "kind", ssd), types[0]))
+    for binding in el.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS):
+        prefix = binding.get("prefix", "")
+        src = binding.get("source")
+        if src is not None:
+            comp.parameter_sources.append(src)
+            values = read_parameter_set(ssd.parent / src)
+        else:
+            inline = binding.find("ssd:ParameterValues/ssv:ParameterSet", NS)
+            if inline is None:
+                raise ScenarioError(f"{ssd}: ParameterBinding of '{name}' has neither a source nor ParameterValues")
+            values = _read_parameters(inline, ssd)
+        for pname, p in values.items():                 # later bindings take priority (SSP)
+            p.name = pname[len(prefix):] if prefix and pname.startswith(prefix) else pname
+            comp.parameters[p.name] = p
+    return comp
+
+
+def _read_parameters(root: ET.Element, path: Path) -> dict[str, Parameter]:
+    params = {}
+    for p in root.findall("ssv:Parameters/ssv:Parameter", NS):
+        name = _attr(p, "name", path)
+        kinds = [t for t in TYPES if p.find(f"ssv:{t}", NS) is not None]
+        if len(kinds) != 1:
+            raise ScenarioError(f"{path}: parameter {name} needs exactly one of ssv:{', ssv:'.join(TYPES)}")
+        v = p.find(f"ssv:{kinds[0]}", NS)
+        raw = _attr(v, "value", path)
+        params[name] = Parameter(name, kinds[0], parse_value(raw, kinds[0], f"{path}: parameter {name}"),
+                                 unit=v.get("unit"))
+    return params
+
+
+def parse_value(raw: str, type_: str, where: str) -> float | int | bool | str:
+    """A value of an FMI/SSP type from its text."""
+    try:
+        if type_ == "Real":
+            return float(raw)
+        if type_ == "Integer":
+            return int(raw)
+        if type_ == "Boolean":
+            if raw.strip().lower() not in ("true", "false", "1", "0"):
+                raise ValueError(raw)
+            return raw.strip().lower() in ("true", "1")
+        return raw
+    except ValueError:
+        raise ScenarioError(f"{where}: value {raw!r} is not a valid {type_}") from None
+
+
+def _parse(path: Path) -> ET.Element:
+    try:
+        return ET.parse(path).getroot()
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: file not found") from None
+    except ET.ParseError as exc:
+        raise ScenarioError(f"{path}: malformed XML ({exc})") from None
+
+
+def _comments(path: Path) -> list[str]:
+    """The XML comments of a file (before and inside the root), whitespace collapsed."""
+    return [" ".join(c.split()) for c in re.findall(r"<!--(.*?)-->", path.read_text(), re.S)]
+
+
+def _q(prefix: str, tag: str) -> str:
+    return f"{{{NS[prefix]}}}{tag}"
+
+
+def _child(el: ET.Element, prefix: str, tag: str, path: Path) -> ET.Element:
+    c = el.find(f"{prefix}:{tag}", NS)
+    if c is None:
+        raise ScenarioError(f"{path}: missing element {prefix}:{tag}")
+    return c
+
+
+def _attr(el: ET.Element, name: str, path: Path) -> str:
+    v = el.get(name)
+    if v is None:
+        tag = el.tag.split("}")[-1]
+        raise ScenarioError(f"{path}: element {tag} {el.get('name', '')} lacks attribute '{name}'".replace("  ", " "))
+    return v
+
+
+def _float(raw: str, path: Path, what: str) -> float:
+    try:
+        x = float(raw)
+    except ValueError:
+        raise ScenarioError(f"{path}: {what} = {raw!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ScenarioError(f"{path}: {what} = {raw!r} is not finite")
+    return x
+
+
+# ---- writing --------------------------------------------------------------------------------------
+
+for _prefix, _uri in NS.items():
+    ET.register_namespace(_prefix, _uri)
+
+
+def format_value(value: float | int | bool | str) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def parameter_set_xml(name: str, parameters: list[Parameter], notes: list[str] = ()) -> str:
+    """The text of an .ssv file; each parameter's description becomes an XML comment before it.
+    Units go into the comments, not into `unit` attributes (SSP wants those declared in ssc:Units)."""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>']
+    lines += [f"<!-- {_comment(n)} -->" for n in notes]
+    lines.append(f'<ssv:ParameterSet xmlns:ssv="{NS["ssv"]}" version="1.0" name="{_esc(name)}">')
+    lines.append("  <ssv:Parameters>")
+    for p in parameters:
+        if p.description:
+            lines.append(f"    <!-- {_comment(p.description)} -->")
+        lines.append(f'    <ssv:Parameter name="{_esc(p.name)}">'
+                     f'<ssv:{p.type} value="{_esc(format_value(p.value))}"/></ssv:Parameter>')
+    lines += ["  </ssv:Parameters>", "</ssv:ParameterSet>", ""]
+    return "\n".join(lines)
+
+
+def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float) -> str:
+    """The text of an .ssd file. `sources` maps component names to the FMU paths as written
+    (relative to the .ssd); each component binds the .ssv files in its `parameter_sources`.
+    `scenario.notes` become XML comments at the top, `description`s become attributes."""
+    ns = " ".join(f'xmlns:{p}="{u}"' for p, u in NS.items())
+    desc = f' description="{_esc(scenario.description)}"' if scenario.description else ""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>']
+    lines += [f"<!-- {_comment(n)} -->" for n in scenario.notes]
+    lines.append(f'<ssd:SystemStructureDescription {ns} version="1.0" name="{_esc(scenario.name)}"{desc}>')
+    lines.append(f'  <ssd:System name="{_esc(scenario.name)}">')
+    lines.append("    <ssd:Elements>")
+    for c in scenario.components:
+        cdesc = f' description="{_esc(c.description)}"' if c.description else ""
+        lines.append(f'      <ssd:Component name="{_esc(c.name)}" type="application/x-fmu-sharedlibrary" '
+                     f'source="{_esc(sources[c.name])}"{cdesc}>')
+        lines.append("        <ssd:Connectors>")
+        for k in c.connectors:
+            lines.append(f'          <ssd:Connector name="{_esc(k.name)}" kind="{k.kind}"><ssc:{k.type}/></ssd:Connector>')
+        lines.append("        </ssd:Connectors>")
+        if c.parameter_sources:
+            lines.append("        <ssd:ParameterBindings>")
+            lines += [f'          <ssd:ParameterBinding source="{_esc(s)}"/>' for s in c.parameter_sources]
+            lines.append("        </ssd:ParameterBindings>")
+        lines.append("      </ssd:Component>")
+    lines.append("    </ssd:Elements>")
+    lines.append("    <ssd:Connections>")
+    for k in scenario.connections:
+        attrs = (f'startElement="{_esc(k.start_element)}" startConnector="{_esc(k.start_connector)}" '
+                 f'endElement="{_esc(k.end_element)}" endConnector="{_esc(k.end_connector)}"')
+        if k.factor != 1.0 or k.offset != 0.0:
+            lines.append(f"      <ssd:Connection {attrs}>")
+            lines.append(f'        <ssc:LinearTransformation factor="{k.factor!r}" offset="{k.offset!r}"/>')
+            lines.append("      </ssd:Connection>")
+        else:
+            lines.append(f"      <ssd:Connection {attrs}/>")
+    lines.append("    </ssd:Connections>")
+    lines.append("  </ssd:System>")
+    stop = f' stopTime="{scenario.stop_time!r}"' if scenario.stop_time is not None else ""
+    lines.append(f'  <ssd:DefaultExperiment startTime="{scenario.start_time!r}"{stop}>')
+    lines.append("    <ssd:Annotations>")
+    lines.append(f'      <ssc:Annotation type="{OSP_ANNOTATION}">')
+    lines.append(f'        <osp:Algorithm><osp:FixedStepAlgorithm baseStepSize="{step_size!r}"/></osp:Algorithm>')
+    lines.append("      </ssc:Annotation>")
+    lines.append("    </ssd:Annotations>")
+    lines.append("  </ssd:DefaultExperiment>")
+    lines += ["</ssd:SystemStructureDescription>", ""]
+    return "\n".join(lines)
+
+
+def _esc(s: str) -> str:
+    return (str(s).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;"))
+
+
+def _comment(s: str) -> str:
+    return " ".join(str(s).replace("--", "- -").split())

@@ -1,0 +1,184 @@
+"""The paper's scenarios (scenarios/): files, runs, accuracy against the monolithic reference,
+convergence order, the libcosim cross-check and the container FMU.
+
+Test horizons are shortened (MEMS 0.5 ms, maglev 2 s) to keep the suite fast; the scenarios keep
+the paper-scale horizons, which benchmarks/bench_master.py runs in full (accuracy included)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from emcosim import paper_scenarios
+from emcosim.master import simulate
+from emcosim.ssd import read_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = [c.name for c in paper_scenarios.cases()]
+MODELS = ["MEMS", "Maglev", "MEMS_Theorem2", "MEMS_Proposition1", "Maglev_Theorem3", "Maglev_Proposition2", "Reference"]
+ACCURACY = 1e-3                 # normalised maximum position error at the default step (docs/scenarios.md)
+
+
+def test_scenario_files_are_generated_from_components():
+    assert paper_scenarios.stale() == [], "run `python -m emcosim.paper_scenarios` to regenerate scenarios/"
+
+
+def test_every_paper_case_has_a_scenario():
+    assert len(SCENARIOS) == 10
+    for name in SCENARIOS:
+        s = read_scenario(ROOT / "scenarios" / name)
+        assert s.stop_time > 0 and s.step_size > 0
+        assert {c.name for c in s.components} >= {"controller", "plant"}
+        assert s.notes, f"{name}: the .ssd must document its choices"
+
+
+def test_scenario_files_validate_against_the_ssp_schema():
+    etree = pytest.importorskip("lxml.etree")
+    import fmpy
+    schema_dir = Path(fmpy.__file__).parent / "ssp" / "schema"
+    for xsd, pattern in [("SystemStructureDescription.xsd", "*/SystemStructure.ssd"),
+                         ("SystemStructureParameterValues.xsd", "*/*.ssv")]:
+        schema = etree.XMLSchema(etree.parse(str(schema_dir / xsd)))
+        files = sorted((ROOT / "scenarios").glob(pattern))
+        assert files
+        for f in files:
+            assert schema.validate(etree.parse(str(f))), f"{f}: {schema.error_log.last_error}"
+
+
+def test_maglev_initial_flux_is_the_feasible_one():
+    from components.maglev import Maglev
+    plant = Maglev()
+    q0, p0, x0 = paper_scenarios.maglev_initial_state()
+    assert (q0, p0) == (0.0015, 0.0)
+    assert x0 == pytest.approx(np.sqrt(2 * plant.k * plant.b), rel=1e-12)        # q*''(0) = 0
+
+
+# ---- runs: these need the FMUs ------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def fmu_dir() -> Path:
+    """build/fmus (or $EMCOSIM_FMU_DIR); built with build.py if missing."""
+    d = Path(os.environ.get("EMCOSIM_FMU_DIR", ROOT / "build" / "fmus"))
+    missing = [m for m in MODELS if not (d / f"{m}.fmu").is_file()]
+    if missing and (ROOT / "build.py").is_file() and "EMCOSIM_FMU_DIR" not in os.environ:
+        subprocess.run([sys.executable, str(ROOT / "build.py")], cwd=ROOT, check=True, capture_output=True)
+        missing = [m for m in MODELS if not (d / f"{m}.fmu").is_file()]
+    if missing:
+        pytest.skip(f"FMUs not built: {missing} in {d}")
+    return d
+
+
+def short(name: str) -> float:
+    return 5e-4 if name.startswith("mems") else 2.0
+
+
+def scenario(name: str, fmu_dir: Path):
+    return read_scenario(ROOT / "scenarios" / name, fmu_dir=fmu_dir)
+
+
+@pytest.fixture(scope="session")
+def references():
+    """Monolithic references, computed once per (scenario, horizon, grid)."""
+    from emcosim.reference_check import monolithic
+    cache = {}
+
+    def get(s, t_end, n_samples):
+        key = (s.name, t_end, n_samples)
+        if key not in cache:
+            cache[key] = monolithic(s, stop_time=t_end, n_samples=n_samples)
+        return cache[key]
+    return get
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_scenario_matches_monolithic_reference(name, fmu_dir, references):
+    """Every scenario at its default step: the co-simulation follows the monolithic closed loop of
+    the same components within ACCURACY (normalised maximum position error)."""
+    from emcosim.reference_check import position_error, samples_for
+    s = scenario(name, fmu_dir)
+    t_end = short(name)
+    result = simulate(s, stop_time=t_end)
+    assert result.time[-1] == pytest.approx(t_end) and len(result) == round(t_end / s.step_size) + 1
+    assert set(result.columns) >= {"plant.q", "plant.p", "plant.x_e", "plant.u", "controller.u"}
+    np.testing.assert_array_equal(result["plant.u"], result["controller.u"])
+    ref = references(s, t_end, samples_for(t_end, s.step_size, 1001))
+    assert position_error(result.time, result["plant.q"], ref, position_scale(s)) < ACCURACY
+
+
+@pytest.mark.parametrize("name", ["mems_regulation_Dd-1", "maglev_tracking_D-1_R2.82"])
+def test_error_falls_at_first_order(name, fmu_dir, references):
+    """The controller's output is held over a communication step: the error is O(h)."""
+    from emcosim.reference_check import position_error, samples_for
+    s = scenario(name, fmu_dir)
+    t_end = 4e-4 if name.startswith("mems") else 2.0
+    steps = [4 * s.step_size, 2 * s.step_size, s.step_size]
+    ref = references(s, t_end, samples_for(t_end, steps[0], 1001))
+    errors = []
+    for h in steps:
+        r = simulate(s, stop_time=t_end, step_size=h, record=["plant.q"])
+        errors.append(position_error(r.time, r["plant.q"], ref, 1.0))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - 1.0) < 0.15), (errors, orders)
+
+
+@pytest.mark.parametrize("name", ["mems_regulation_Dd-1", "maglev_tracking_D-1_R2.82"])
+def test_libcosim_cross_check(name, fmu_dir, references):
+    """libcosim runs the same files (its own SSP parser and FMI library). Its fixed-step algorithm is
+    Jacobi: the plant integrates [t_n, t_n+1] with u(t_{n-1}), an effective input delay of 3h/2
+    against the h/2 of our zero-order hold at the same instant. To first order its error against
+    the monolithic reference is then 3 times ours, and the difference between the two engines
+    twice ours."""
+    pytest.importorskip("libcosimpy")
+    from emcosim.libcosim import simulate_libcosim
+    from emcosim.reference_check import position_error, samples_for
+    s = scenario(name, fmu_dir)
+    t_end = 4e-4 if name.startswith("mems") else 2.0
+    ref = references(s, t_end, samples_for(t_end, s.step_size, 1001))
+    ours = simulate(s, stop_time=t_end, record=["plant.q"])
+    theirs = simulate_libcosim(s, stop_time=t_end, record=["plant.q"])
+    np.testing.assert_allclose(theirs.time, ours.time, atol=1e-12)
+    e_ours = position_error(ours.time, ours["plant.q"], ref, 1.0)
+    e_theirs = position_error(theirs.time, theirs["plant.q"], ref, 1.0)
+    diff = np.max(np.abs(theirs["plant.q"] - ours["plant.q"]))
+    assert 2.5 < e_theirs / e_ours < 3.5, (e_ours, e_theirs)
+    assert 1.6 < diff / e_ours < 2.4, (e_ours, diff)
+
+
+def test_container_fmu_of_a_scenario(fmu_dir, tmp_path):
+    """`emcosim export` writes a container FMU that `fmpy validate` accepts and `fmpy simulate`
+    runs; its trajectory agrees with our master's (see docs/scenarios.md on its stepping)."""
+    from fmpy import simulate_fmu
+    from emcosim.cli import main
+    name = "maglev_tracking_D-1_R2.82"
+    fmu = tmp_path / "loop.fmu"
+    assert main(["export", name, "-o", str(fmu), "--fmu-dir", str(fmu_dir)]) == 0
+    check = subprocess.run([sys.executable, "-m", "fmpy.cli", "validate", str(fmu)], capture_output=True, text=True)
+    assert check.returncode == 0, check.stdout + check.stderr
+    out = tmp_path / "loop.csv"
+    run = subprocess.run([sys.executable, "-m", "fmpy.cli", "simulate", str(fmu), "--stop-time", "0.5",
+                          "--output-interval", "0.0005", "--output-file", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout + run.stderr
+    from emcosim.results import read_csv
+    container = read_csv(out)
+    ours = simulate(scenario(name, fmu_dir), stop_time=0.5, record=["plant.q"])
+    np.testing.assert_allclose(container["time"], ours.time, atol=1e-12)
+    diff = np.max(np.abs(container["plant.q"] - ours["plant.q"])) / np.max(np.abs(ours["plant.q"]))
+    assert diff < 1e-3
+    r = simulate_fmu(str(fmu), stop_time=0.1, output_interval=0.0005, start_values={"controller.D_d": 0.0})
+    assert r["time"][-1] == pytest.approx(0.1)
+
+
+def test_cli_runs_a_paper_scenario(fmu_dir, tmp_path, capsys):
+    from emcosim.cli import main
+    from emcosim.results import read_csv
+    out = tmp_path / "r.csv"
+    assert main(["run", "maglev_regulation_prop2", "--stop-time", "0.05", "--fmu-dir", str(fmu_dir),
+                 "--set", "controller.D_d=0", "--output", str(out), "--no-progress"]) == 0
+    data = read_csv(out)
+    assert {"time", "plant.q", "plant.H", "controller.u"} <= set(data) and len(data["time"]) == 101
+    assert main(["info", "maglev_regulation_prop2", "--fmu-dir", str(fmu_dir)]) == 0
+    assert "q_0" in capsys.readouterr().out

@@ -98,7 +98,7 @@ def references():
 def test_scenario_matches_monolithic_reference(name, fmu_dir, references):
     """Every scenario at its default step: the co-simulation follows the monolithic closed loop of
     the same components within ACCURACY (normalised maximum position error)."""
-    from emcosim.reference_check import position_error, samples_for
+    from emcosim.reference_check import position_error, position_scale, samples_for
     s = scenario(name, fmu_dir)
     t_end = short(name)
     result = simulate(s, stop_time=t_end)

@@ -59,10 +59,11 @@ def certify_scenario(path: str | Path, radius: float = 0.1, include_start: bool 
                      scenario_dirs: list[Path] | None = None) -> certificates.Certificate:
     """Certificate of a scenario's design over a tube of relative half-width `radius` around its
     reference (over the scenario's horizon); with include_start the tube also contains eta(0)."""
-    d = design_from_scenario(read_scenario(path, scenario_dirs))
+    scenario = read_scenario(path, scenario_dirs)
+    d = design_from_scenario(scenario)
     cert = certificates.certify(d.controller, d.reference, d.horizon, radius=radius,
                                 eta0=d.eta0 if include_start else None)
-    cert.controller = f"{d.controller_name} ({d.controller.name}) in {Path(path).name}"
+    cert.controller = f"{d.controller_name} ({d.controller.name}) in scenario {scenario.name}"
     if d.eta0 is not None:
         target0 = d.controller.target(None if d.reference is None else d.reference.jet(0.0))
         inside = bool(np.all(np.abs(d.eta0 - target0) <= np.asarray(cert.neighbourhood["half_widths"])))

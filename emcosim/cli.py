@@ -4,6 +4,8 @@
                          [--output results.csv] [--plot results.png]
     emcosim export SCENARIO -o loop.fmu
     emcosim info [SCENARIO ...]
+    emcosim reproduce [--out DIR]
+    emcosim certify SCENARIO [--radius R] [--include-start] [--json FILE]
 
 SCENARIO is a scenario name (a folder of scenarios/), a folder holding SystemStructure.ssd, an
 .ssd file or an .ssp archive. Errors are reported on one line; the exit status is then 1 (2 for
@@ -76,6 +78,20 @@ def _parser() -> argparse.ArgumentParser:
     info.add_argument("scenario", nargs="*", help="scenarios to describe (default: all in scenarios/)")
     info.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
     info.set_defaults(func=cmd_info)
+
+    rep = sub.add_parser("reproduce", help="build the FMUs if needed, run every paper scenario, write figures and reports")
+    rep.add_argument("--out", default="results", help="output folder (default: results)")
+    rep.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
+    rep.add_argument("--stop-time", type=float, help="shorten every scenario to this stop time [s] (a quick look)")
+    rep.set_defaults(func=cmd_reproduce)
+
+    cert = sub.add_parser("certify", help="check the paper's conditions and certify a contraction rate for a scenario's design")
+    cert.add_argument("scenario")
+    cert.add_argument("--radius", type=float, default=0.1,
+                      help="half-width of the neighbourhood around the reference, relative to each state's scale (default 0.1)")
+    cert.add_argument("--include-start", action="store_true", help="widen the neighbourhood to contain the initial state")
+    cert.add_argument("--json", help="also write the certificate as JSON to this file")
+    cert.set_defaults(func=cmd_certify)
     return p
 
 
@@ -163,6 +179,31 @@ def cmd_info(args) -> int:
             start = f" = {v.start}" if v.start is not None else ""
             desc = f"  {v.description}" if v.description else ""
             print(f"      {v.causality:<10} {v.type:<8} {v.name}{unit}{start}{desc}")
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from .reproduce import ensure_fmus, reproduce
+
+    if args.fmu_dir is None:
+        ensure_fmus()
+    reproduce(args.out, stop_time=args.stop_time, fmu_dir=args.fmu_dir)
+    return 0
+
+
+def cmd_certify(args) -> int:
+    from .certify import certify_scenario
+    from .ssd import resolve_path
+
+    path = resolve_path(args.scenario, scenario_dirs())
+    try:
+        cert = certify_scenario(path, radius=args.radius, include_start=args.include_start)
+    except ValueError as exc:                       # an invalid design: a parameter the paper's conditions refuse
+        raise ScenarioError(f"{path}: {exc}") from None
+    print(cert.report())
+    if args.json:
+        Path(args.json).write_text(cert.to_json())
+        print(f"certificate written to {args.json}")
     return 0
 
 

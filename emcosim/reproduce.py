@@ -55,11 +55,12 @@ def run_from_result(name: str, label: str, scenario, result) -> report.Run:
 
 
 def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | None = None,
-                        out=sys.stderr) -> tuple[dict[str, report.Run], dict[str, float]]:
+                        out=sys.stderr, fmu_dir: str | Path | None = None
+                        ) -> tuple[dict[str, report.Run], dict[str, float]]:
     """Run each scenario (at its default step and horizon unless stop_time is given)."""
     runs, walls = {}, {}
     for i, (role, name) in enumerate(names.items(), 1):
-        scenario = read_scenario(SCENARIOS / name)
+        scenario = read_scenario(SCENARIOS / name, fmu_dir=fmu_dir)
         bar = ProgressBar(f"[{i}/{len(names)}] {name}", stream=out)
         tic = time.perf_counter()
         result = simulate(scenario, stop_time=stop_time, progress=bar)
@@ -69,6 +70,16 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
               file=out, flush=True)
         runs[role] = run_from_result(name, LABELS.get(role, name), scenario, result)
     return runs, walls
+
+
+def ensure_fmus(out=sys.stderr) -> None:
+    """Build the FMUs with the project's build.py when any FMU a paper scenario needs is missing."""
+    needed = {Path(c.source) for name in PAPER_CASES.values() for c in read_scenario(SCENARIOS / name).components}
+    if all(p.is_file() for p in needed):
+        return
+    import runpy
+    print("building the FMUs (build.py) ...", file=out, flush=True)
+    runpy.run_path(str(ROOT / "build.py"), run_name="__main__")
 
 
 def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
@@ -89,10 +100,11 @@ def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
     return files
 
 
-def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=sys.stderr) -> dict:
+def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=sys.stderr,
+              fmu_dir: str | Path | None = None) -> dict:
     out_path = Path(out_dir)
     out_path.mkdir(parents=True, exist_ok=True)
-    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out)
+    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir)
     figures = write_figures(runs, out_path)
     notes = []
     for name in PAPER_CASES.values():

@@ -116,3 +116,15 @@ def test_certify_a_scenario_file():
     prop2 = certify_scenario("scenarios/maglev_regulation_prop2")
     assert prop2.check("Assumption 2").verdict == HOLDS
     assert prop2.check("pH condition (eq. pHcondition)").verdict == HOLDS
+
+
+def test_certify_command(tmp_path, capsys):
+    from emcosim.cli import main
+    out = tmp_path / "cert.json"
+    assert main(["certify", "maglev_regulation_prop2", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Proposition 2" in text and "maglev_regulation_prop2" in text and "[         holds] Assumption 2" in text
+    data = json.loads(out.read_text())
+    assert {c["name"]: c["verdict"] for c in data["checks"]}["pH condition (eq. pHcondition)"] == "holds"
+    assert main(["certify", "no_such_scenario"]) == 1
+    assert "scenario not found" in capsys.readouterr().err

@@ -182,3 +182,18 @@ def test_cli_runs_a_paper_scenario(fmu_dir, tmp_path, capsys):
     assert {"time", "plant.q", "plant.H", "controller.u"} <= set(data) and len(data["time"]) == 101
     assert main(["info", "maglev_regulation_prop2", "--fmu-dir", str(fmu_dir)]) == 0
     assert "q_0" in capsys.readouterr().out
+
+
+def test_scenarios_run_one_after_another_in_one_process(fmu_dir):
+    """The master deletes each run's unzip folders, while the FMUs' Python modules stay loaded in
+    the process (one interpreter for all pythonfmu FMUs): a second run of the same FMUs must still
+    initialize (it once failed checking its bundle against the deleted first copy). A fresh
+    process, so that no earlier test has loaded the modules."""
+    code = ("import sys; from emcosim.master import simulate; from emcosim.ssd import read_scenario\n"
+            "for name in ['mems_regulation_Dd0', 'mems_tracking_Dd0', 'mems_regulation_Dd0']:\n"
+            f"    r = simulate(read_scenario({str(ROOT / 'scenarios')!r} + '/' + name, fmu_dir={str(fmu_dir)!r}),"
+            " stop_time=2e-5)\n"
+            "    print(name, len(r))\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert len(run.stdout.split("\n")) == 4

@@ -1,0 +1,205 @@
+"""Median cost of one communication step per FMU, beside the same computation calling components/.
+
+    python benchmarks/bench_fmus.py [--fmus build/fmus] [-n 2000]
+
+Per FMU, at the communication step h of the paper's MEMS examples (1e-6 s) or, for the maglev (the
+paper gives none), its default experiment's step (1e-3 s):
+  plant       doStep alone, and setReal(u) + doStep + getReal(q, p, x_e), versus PlantStepper.advance;
+  controller  setReal(inputs) + doStep + getReal(u), versus controller.u(eta, jet);
+  reference   doStep + getReal(jet), versus reference.jet(t).
+FMI calls go straight to the FMU's ctypes functions with pre-allocated arrays (what a C master pays);
+"fmpy" is the same through FMU2Slave's Python methods. Inputs vary from step to step like in a loop.
+Targets (issue 3): MEMS plant doStep at h = 1e-6 s <= 50 us; controller set + doStep + get <= 10 us.
+"""
+from __future__ import annotations
+
+import argparse
+import ctypes
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fmpy import extract, read_model_description   # noqa: E402
+from fmpy.fmi2 import FMU2Slave                      # noqa: E402
+
+from components import maglev, mems, references      # noqa: E402
+from components.ph_plant import Jet                  # noqa: E402
+from components.plant_step import PlantStepper      # noqa: E402
+from components.proposition1 import Proposition1    # noqa: E402
+from components.proposition2 import Proposition2    # noqa: E402
+from components.theorem2 import Theorem2            # noqa: E402
+from components.theorem3 import Theorem3            # noqa: E402
+
+H = {"MEMS": 1e-6, "Maglev": 1e-3}             # maglev: 1e-3 s, its default experiment's step
+JET = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
+
+
+def median_us(samples: list[int]) -> float:
+    return statistics.median(samples) / 1000.0
+
+
+class Raw:
+    """An initialized FMU with raw ctypes access."""
+
+    def __init__(self, path: Path):
+        self.md = read_model_description(str(path))
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="bench")
+        self.fmu.instantiate()
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.start = {v.name: float(v.start) for v in self.md.modelVariables if v.start is not None}
+        f = self.fmu._functions
+        self.c = self.fmu.component
+        self.do_step, self.set_real, self.get_real = f["fmi2DoStep"], f["fmi2SetReal"], f["fmi2GetReal"]
+
+    def refs(self, names):
+        return (ctypes.c_uint * len(names))(*(self.vr[n] for n in names)), (ctypes.c_double * len(names))()
+
+    def free(self):
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+def bench_plant(path: Path, identifier: str, n: int) -> list[tuple[str, float, float]]:
+    """FMU and components calls alternate, so both see the same machine load."""
+    h = H[identifier]
+    raw = Raw(path)
+    state = raw.fmu.getFMUstate()
+    u0 = raw.start["u"] if identifier == "MEMS" else 0.009045            # maglev: near its equilibrium voltage
+    inputs = [float(u) for u in u0 * (1.0 + 0.01 * np.sin(np.arange(n) * 0.1))]
+    vu, bu = raw.refs(["u"])
+    vy, by = raw.refs(["q", "p", "x_e"])
+    plant = mems.MEMS() if identifier == "MEMS" else maglev.Maglev()
+    rows = []
+    for label in ("doStep", "set + doStep + get", "via fmpy FMU2Slave"):
+        raw.fmu.setFMUstate(state)                       # the open-loop maglev is unstable: restart each run
+        stepper = PlantStepper(plant)
+        eta = tuple(raw.start[f"{x}_0"] for x in ("q", "p", "x_e"))
+        fmu_ns, direct_ns = [], []
+        for k, u in enumerate(inputs):
+            t0 = time.perf_counter_ns()
+            if label == "doStep":
+                bu[0] = u
+                raw.set_real(raw.c, vu, 1, bu)
+                t0 = time.perf_counter_ns()
+                status = raw.do_step(raw.c, k * h, h, 1)
+            elif label == "set + doStep + get":
+                bu[0] = u
+                raw.set_real(raw.c, vu, 1, bu)
+                status = raw.do_step(raw.c, k * h, h, 1)
+                raw.get_real(raw.c, vy, 3, by)
+            else:
+                raw.fmu.setReal([raw.vr["u"]], [u])
+                status = raw.fmu.fmi2DoStep(raw.c, k * h, h, 1)
+                raw.fmu.getReal([raw.vr["q"], raw.vr["p"], raw.vr["x_e"]])
+            fmu_ns.append(time.perf_counter_ns() - t0)
+            assert status == 0, status
+            t0 = time.perf_counter_ns()
+            eta = stepper.advance(*eta, u, h)
+            direct_ns.append(time.perf_counter_ns() - t0)
+        name = f"{identifier} {label}" + (f" (h = {h:g} s)" if label == "doStep" else "")
+        rows.append((name, median_us(fmu_ns), median_us(direct_ns)))
+    raw.fmu.freeFMUstate(state)
+    raw.free()
+    return rows
+
+
+CONTROLLERS = {
+    "MEMS_Proposition1": lambda: Proposition1(mems.MEMS(), 3e-5, mems.R_e_bar_from_rbar_e(100.0), 0.0),
+    "MEMS_Theorem2": lambda: Theorem2(mems.MEMS(), mems.R_e_bar_from_rbar_e(100.0), 0.0),
+    "Maglev_Proposition2": lambda: Proposition2(maglev.Maglev(), 0.0025, 0.82, 20.0, 0.0),
+    "Maglev_Theorem3": lambda: Theorem3(maglev.Maglev(), 0.82, 20.0, 0.0),
+}
+
+
+def bench_controller(path: Path, identifier: str, n: int) -> list[tuple[str, float, float]]:
+    h = H["MEMS" if identifier.startswith("MEMS") else "Maglev"]
+    raw = Raw(path)
+    names = [v.name for v in raw.md.modelVariables if v.causality == "input"]
+    start = np.array([raw.start[x] for x in names])
+    start[1] = start[1] or 1e-12                         # vary every input, also those starting at 0
+    start[2] = start[2] or (4e-11 if identifier.startswith("MEMS") else 1.0)
+    values = [start * (1.0 + 0.01 * np.sin(k * 0.1 + np.arange(len(names)))) for k in range(n)]
+    vin, bin_ = raw.refs(names)
+    vout, bout = raw.refs(["u"])
+    vrs = [raw.vr[x] for x in names]
+    controller = CONTROLLERS[identifier]()
+    rows = []
+    for label in ("set + doStep + get", "via fmpy FMU2Slave"):
+        fmu_ns, direct_ns = [], []
+        for k, x in enumerate(values):
+            t0 = time.perf_counter_ns()
+            if label == "set + doStep + get":
+                for i, xi in enumerate(x):
+                    bin_[i] = xi
+                raw.set_real(raw.c, vin, len(names), bin_)
+                raw.do_step(raw.c, k * h, h, 1)
+                raw.get_real(raw.c, vout, 1, bout)
+                u = bout[0]
+            else:
+                raw.fmu.setReal(vrs, list(x))
+                raw.fmu.fmi2DoStep(raw.c, k * h, h, 1)
+                u = raw.fmu.getReal([raw.vr["u"]])[0]
+            fmu_ns.append(time.perf_counter_ns() - t0)
+            t0 = time.perf_counter_ns()
+            jet = Jet(*(np.array([xi]) for xi in x[3:])) if len(x) > 3 else None
+            direct = float(controller.u(np.array(x[:3]), jet)[0])
+            direct_ns.append(time.perf_counter_ns() - t0)
+            assert u == direct, (u, direct)
+        rows.append((f"{identifier} {label}", median_us(fmu_ns), median_us(direct_ns)))
+    raw.free()
+    return rows
+
+
+def bench_reference(path: Path, n: int) -> list[tuple[str, float, float]]:
+    h = 1e-3
+    raw = Raw(path)
+    vout, bout = raw.refs(JET)
+    reference = references.Sinusoid()
+    fmu_ns, direct_ns = [], []
+    t = 0.0
+    for k in range(n):
+        t0 = time.perf_counter_ns()
+        raw.do_step(raw.c, t, h, 1)
+        raw.get_real(raw.c, vout, 4, bout)
+        fmu_ns.append(time.perf_counter_ns() - t0)
+        t = t + h
+        t0 = time.perf_counter_ns()
+        reference.jet(t)
+        direct_ns.append(time.perf_counter_ns() - t0)
+    raw.free()
+    return [("Reference doStep + get", median_us(fmu_ns), median_us(direct_ns))]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fmus", default=str(ROOT / "build" / "fmus"), help="folder with the built FMUs")
+    parser.add_argument("-n", type=int, default=2000, help="communication steps per measurement")
+    args = parser.parse_args(argv)
+    folder = Path(args.fmus)
+    if not (folder / "MEMS.fmu").exists():
+        import build
+        build.build(folder)
+    rows = []
+    for identifier in ("MEMS", "Maglev"):
+        rows += bench_plant(folder / f"{identifier}.fmu", identifier, args.n)
+    for identifier in CONTROLLERS:
+        rows += bench_controller(folder / f"{identifier}.fmu", identifier, args.n)
+    rows += bench_reference(folder / "Reference.fmu", args.n)
+    print(f"{'median per communication step':42s} {'FMU [us]':>9s} {'components [us]':>16s} {'ratio':>6s}")
+    for name, fmu_us, direct_us in rows:
+        print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:6.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

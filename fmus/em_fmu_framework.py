@@ -1,0 +1,430 @@
+"""FMI plumbing shared by the emcosim FMUs (pythonfmu 0.7.0): nothing here knows physics.
+
+- Variables are declared with unit and description; `to_xml` completes pythonfmu's modelDescription
+  with UnitDefinitions, units, ModelStructure dependencies and InitialUnknowns, and a GUID derived
+  from the content (reproducible builds).
+- FMU state: `_get_fmu_state` / `_set_fmu_state` save every variable plus what an adapter keeps
+  outside them (`save_internal` / `restore_internal`), so a master can roll a step back exactly.
+- Errors never escape into the host as crashes. pythonfmu 0.7.0 turns any Python exception into
+  fmi2Fatal and then releases the slave object (once at the exception, once more in fmi2FreeInstance).
+  So: a failed doStep logs the reason and returns False (fmi2Discard, state unchanged); a failed
+  initialization logs the reason and raises, after giving pythonfmu the extra reference it will drop
+  (`_raise_to_host`), so the instance stays valid and can be freed. fmi2Error is not reachable from a
+  pythonfmu 0.7.0 slave. pythonfmu forwards log messages only to hosts that instantiated with
+  loggingOn, so errors are also echoed to stderr.
+- pythonfmu 0.7.0 also releases the script module's namespace once per fmi2Instantiate; every FMU
+  script calls `hold_script_globals(globals())` so that a second instance does not crash the host.
+- This module is bundled, under the same name and with identical content, in every emcosim FMU; all
+  FMUs loaded in one process share the first copy imported (one interpreter). `check_bundle` verifies
+  at initialization that the shared modules already loaded are identical to this FMU's copies.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import math
+import sys
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, ClassVar
+from xml.etree.ElementTree import Element, SubElement
+
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu._version import __version__ as PYTHONFMU_VERSION
+from pythonfmu.enums import Fmi2Status
+
+# pythonfmu versions whose exception handling was measured to drop the slave's references as described above
+REFCOUNT_COMPENSATED_VERSIONS = {"0.7.0"}
+
+# SI base-unit exponents (kg, m, s, A) of every unit the FMUs use (FMI 2.0 UnitDefinitions / BaseUnit)
+UNITS: dict[str, dict[str, int]] = {
+    "1": {},
+    "s": {"s": 1},
+    "m": {"m": 1},
+    "m/s": {"m": 1, "s": -1},
+    "m/s2": {"m": 1, "s": -2},
+    "m/s3": {"m": 1, "s": -3},
+    "kg": {"kg": 1},
+    "kg.m/s": {"kg": 1, "m": 1, "s": -1},
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "N/m": {"kg": 1, "s": -2},
+    "N/m3": {"kg": 1, "m": -2, "s": -2},
+    "N.s/m": {"kg": 1, "s": -1},
+    "J": {"kg": 1, "m": 2, "s": -2},
+    "C": {"s": 1, "A": 1},
+    "C/m": {"m": -1, "s": 1, "A": 1},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+    "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
+    "F/m": {"kg": -1, "m": -3, "s": 4, "A": 2},
+    "Wb": {"kg": 1, "m": 2, "s": -2, "A": -1},
+    "Wb/m": {"kg": 1, "m": 1, "s": -2, "A": -1},
+    "H.m": {"kg": 1, "m": 3, "s": -2, "A": -2},
+    "rad": {"rad": 1},
+    "rad/s": {"rad": 1, "s": -1},
+}
+
+# the reference jet: outputs of the Reference FMU, inputs of the tracking controllers (name, unit, description)
+REFERENCE_JET = (("q_star", "m", "reference position q*"),
+                 ("q_star_dot", "m/s", "first derivative of the reference position, q*'"),
+                 ("q_star_ddot", "m/s2", "second derivative of the reference position, q*''"),
+                 ("q_star_dddot", "m/s3", "third derivative of the reference position, q*'''"))
+
+# modules every emcosim FMU bundles under the same names
+SHARED_MODULES = ("components", "em_fmu_framework", "em_fmu_plant", "em_fmu_controller", "em_fmu_reference")
+
+
+@dataclass
+class Variable:
+    """One FMI variable of an emcosim FMU.
+
+    causality      "parameter" (fixed), "input" or "output" (continuous, calculated)
+    dependencies   outputs only: names of the inputs the output depends on in Step Mode
+    initial_deps   outputs only: names of the knowns (inputs, parameters) it depends on at initialization
+    """
+
+    name: str
+    causality: str
+    unit: str | None
+    description: str
+    start: float | int | None = None
+    integer: bool = False
+    getter: Callable[[], float] | None = None
+    dependencies: list[str] = field(default_factory=list)
+    initial_deps: list[str] | None = None
+
+
+def _tree_hash(path: Path) -> str:
+    """sha256 of the *.py sources of a package directory or a single module file."""
+    files = sorted(path.rglob("*.py")) if path.is_dir() else [path]
+    digest = hashlib.sha256()
+    for f in files:
+        if "__pycache__" in f.parts:
+            continue
+        digest.update(f.relative_to(path if path.is_dir() else path.parent).as_posix().encode())
+        digest.update(b"\0" + f.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def hold_script_globals(namespace: dict) -> None:
+    """Call at the top level of every FMU script with globals().
+
+    pythonfmu 0.7.0 finds the slave class by re-executing the script in the module's namespace at each
+    fmi2Instantiate and then releases that namespace (a borrowed reference) once too often; a script
+    without functions of its own loses its globals after the first instance is freed, and the next
+    fmi2Instantiate crashes the host. Each execution of the script therefore takes one reference here:
+    the re-executions are balanced, the first import keeps one (the module lives for the process)."""
+    if PYTHONFMU_VERSION in REFCOUNT_COMPENSATED_VERSIONS:
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
+
+
+_HASHES: dict[str, str] = {}
+
+
+def _cached_hash(path: Path) -> str | None:
+    """Hash of a module's sources, remembered per path: a master may delete an FMU's unzip folder
+    after the run while the modules imported from it stay loaded. None if never seen and gone."""
+    key = str(path.resolve())
+    if key not in _HASHES:
+        if not path.exists():
+            return None
+        _HASHES[key] = _tree_hash(path)
+    return _HASHES[key]
+
+
+class EMSlave(Fmi2Slave):
+    """Base of the emcosim slaves. Subclasses set the class attributes and implement `declare`,
+    `initialize` (build the components objects; raise ValueError with the reason), `step` (return
+    True, or log and return False) and, if they keep state outside the variables, `save_internal` /
+    `restore_internal`."""
+
+    model_identifier: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    experiment: ClassVar[tuple[float, float, float]] = (0.0, 1.0, 1e-3)   # start, stop, step
+    author = "emcosim"
+    license = "MIT"
+    version = "0.1.0"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.modelName = self.model_identifier
+        self.description = self.summary
+        start, stop, step = self.experiment
+        self.default_experiment = DefaultExperiment(start_time=start, stop_time=stop, step_size=step)
+        self.values: dict[str, float] = {}
+        self.variables: list[Variable] = []
+        self.by_name: dict[str, Variable] = {}
+        self._getters: list[Callable[[], float] | None] = []
+        self._setters: list[Callable[[float], None] | None] = []
+        self._is_integer: list[bool] = []
+        self.initialized = False
+        self.time = 0.0
+        self.declare()
+
+    # ---- declaration ----------------------------------------------------------------------------
+    def declare(self) -> None:
+        raise NotImplementedError
+
+    def parameter(self, name: str, start: float, unit: str | None, description: str, integer: bool = False) -> None:
+        self._add(Variable(name, "parameter", unit, description, start, integer))
+
+    def input(self, name: str, start: float, unit: str, description: str) -> None:
+        self._add(Variable(name, "input", unit, description, start))
+
+    def output(self, name: str, unit: str, description: str, getter: Callable[[], float],
+               dependencies: list[str], initial_deps: list[str] | None) -> None:
+        self._add(Variable(name, "output", unit, description, None, False, getter, list(dependencies),
+                           None if initial_deps is None else list(initial_deps)))
+
+    def _add(self, var: Variable) -> None:
+        if var.unit is not None and var.unit not in UNITS:
+            raise ValueError(f"{self.model_identifier}: unit {var.unit!r} of {var.name} has no UnitDefinition")
+        if var.name in self.by_name:
+            raise ValueError(f"{self.model_identifier}: variable {var.name} declared twice")
+        self.variables.append(var)
+        self.by_name[var.name] = var
+        name = var.name
+        if var.causality == "output":
+            getter, setter = var.getter, None
+        else:
+            self.values[name] = var.start
+            getter = (lambda: self.values[name])
+            setter = self._make_setter(var)
+        kind = Integer if var.integer else Real
+        causality = {"parameter": Fmi2Causality.parameter, "input": Fmi2Causality.input,
+                     "output": Fmi2Causality.output}[var.causality]
+        variability = {"parameter": Fmi2Variability.fixed, "input": Fmi2Variability.continuous,
+                       "output": Fmi2Variability.continuous}[var.causality]
+        if var.integer and var.causality != "parameter":
+            raise ValueError("only parameters may be Integer")
+        self.register_variable(kind(name, causality=causality, variability=variability,
+                                    description=var.description, getter=getter, setter=setter))
+        self._getters.append(getter)
+        self._setters.append(setter)
+        self._is_integer.append(var.integer)
+
+    def _make_setter(self, var: Variable) -> Callable[[float], None]:
+        name, is_input, integer = var.name, var.causality == "input", var.integer
+
+        if is_input:
+            values, changed = self.values, self.inputs_changed
+
+            def set_input(value):
+                values[name] = float(value)
+                changed()
+            return set_input
+
+        def setter(value):
+            if self.initialized:
+                self.log(f"{self.model_identifier}: parameter {name} is fixed after initialization; "
+                         f"the value {value!r} is ignored", Fmi2Status.warning)
+                return
+            self.values[name] = int(value) if integer else float(value)
+        return setter
+
+    def inputs_changed(self) -> None:
+        """Hook: an input was set (controllers drop their cached output)."""
+
+    # ---- FMI get/set (never raise into the host) --------------------------------------------------
+    def _get(self, vrs, integer: bool) -> list:
+        try:                                                          # fast path: all references valid
+            if all(self._is_integer[vr] == integer for vr in vrs):
+                return [(int if integer else float)(self._getters[vr]()) for vr in vrs]
+        except Exception:                                             # noqa: BLE001 - retried one by one below
+            pass
+        out = []
+        for vr in vrs:
+            try:
+                if self._is_integer[vr] != integer:
+                    raise TypeError(f"variable {self.vars[vr].name} is not of type {'Integer' if integer else 'Real'}")
+                value = self._getters[vr]()
+                out.append(int(value) if integer else float(value))
+            except Exception as exc:                                  # noqa: BLE001 - must not reach the host
+                self.log_error(f"get of valueReference {vr} failed: {exc}")
+                out.append(0 if integer else math.nan)
+        return out
+
+    def _set(self, vrs, values, integer: bool) -> None:
+        for vr, value in zip(vrs, values):
+            try:
+                setter = self._setters[vr]
+                if setter is None:
+                    raise TypeError(f"variable {self.vars[vr].name} is an output and cannot be set")
+                if self._is_integer[vr] != integer:
+                    raise TypeError(f"variable {self.vars[vr].name} is not of type {'Integer' if integer else 'Real'}")
+                setter(value)
+            except Exception as exc:                                  # noqa: BLE001
+                self.log_error(f"set of valueReference {vr} failed: {exc}")
+
+    def get_real(self, vrs):
+        return self._get(vrs, False)
+
+    def set_real(self, vrs, values):
+        self._set(vrs, values, False)
+
+    def get_integer(self, vrs):
+        return self._get(vrs, True)
+
+    def set_integer(self, vrs, values):
+        self._set(vrs, values, True)
+
+    # ---- life cycle -----------------------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self.time = float(start_time)
+
+    def exit_initialization_mode(self):
+        try:
+            self.check_bundle()
+            self.initialize()
+        except Exception as exc:                                      # noqa: BLE001
+            self.initialized = False
+            self._raise_to_host(exc, f"{self.model_identifier}: initialization failed: {exc}")
+        self.initialized = True
+
+    def initialize(self) -> None:
+        raise NotImplementedError
+
+    def do_step(self, current_time, step_size):
+        try:
+            if not self.initialized:
+                self.log_error(f"{self.model_identifier}: doStep before a successful initialization")
+                return False
+            ok = bool(self.step(float(current_time), float(step_size)))
+        except Exception as exc:                                      # noqa: BLE001
+            self.log_error(f"{self.model_identifier}: doStep at t = {current_time:.9g} s failed: {exc}")
+            return False
+        if ok:
+            self.time = current_time + step_size
+        return ok
+
+    def step(self, t: float, h: float) -> bool:
+        raise NotImplementedError
+
+    def log_error(self, message: str) -> None:
+        """Log with status error, and echo to stderr: pythonfmu 0.7.0 forwards log messages to the host
+        only when it instantiated the FMU with loggingOn, and a failure must never pass unnoticed."""
+        self.log(message, Fmi2Status.error)
+        print(f"[{self.instance_name}] error: {message}", file=sys.stderr, flush=True)
+
+    def _raise_to_host(self, exc: Exception, message: str) -> None:
+        """Fail the current FMI call (pythonfmu reports fmi2Fatal) with `message`, keeping this instance
+        valid: see the module docstring. Versions of pythonfmu not measured get a log entry and the
+        failure is reported by the next doStep (fmi2Discard) instead."""
+        if PYTHONFMU_VERSION not in REFCOUNT_COMPENSATED_VERSIONS:
+            self.log_error(message)
+            return
+        for obj in (self, type(self), self.log_queue):
+            ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+        # pythonfmu logs the exception itself (and loses it if the log queue is not empty); echo to stderr
+        print(f"[{self.instance_name}] error: {message}", file=sys.stderr, flush=True)
+        raise RuntimeError(message) from exc
+
+    # ---- FMU state -----------------------------------------------------------------------------
+    def save_internal(self) -> dict:
+        return {}
+
+    def restore_internal(self, internal: dict) -> None:
+        pass
+
+    def _get_fmu_state(self):
+        try:
+            return {"values": dict(self.values), "time": self.time, "initialized": self.initialized,
+                    "internal": self.save_internal()}
+        except Exception as exc:                                      # noqa: BLE001
+            self.log_error(f"{self.model_identifier}: getFMUstate failed: {exc}")
+            return {}
+
+    def _set_fmu_state(self, state):
+        try:
+            changed = any(self.values.get(k) != v for k, v in state["values"].items()
+                          if self.by_name[k].causality == "parameter")
+            self.values.update(state["values"])
+            self.time = state["time"]
+            if state["initialized"] and (changed or not self.initialized):
+                self.initialize()
+            self.initialized = state["initialized"]
+            self.restore_internal(state["internal"])
+            self.inputs_changed()
+        except Exception as exc:                                      # noqa: BLE001
+            self.log_error(f"{self.model_identifier}: setFMUstate failed: {exc}")
+
+    # ---- shared code check ----------------------------------------------------------------------
+    def check_bundle(self) -> None:
+        """Raise if a shared module already loaded in this process differs from this FMU's copy."""
+        if not self.resources:
+            return
+        resources = Path(self.resources)
+        for name in SHARED_MODULES:
+            module = sys.modules.get(name)
+            if module is None or getattr(module, "__file__", None) is None:
+                continue
+            loaded = Path(module.__file__)
+            loaded = loaded.parent if loaded.name == "__init__.py" else loaded
+            bundled = resources / (name if module.__file__.endswith("__init__.py") else name + ".py")
+            loaded_hash = _cached_hash(loaded)          # remembered now, while the files exist
+            if not bundled.exists() or loaded.resolve() == bundled.resolve():
+                continue
+            if loaded_hash is None:
+                self.log(f"{self.model_identifier}: module {name} was loaded from {loaded}, which no longer "
+                         "exists; cannot check that it equals this FMU's copy", Fmi2Status.warning)
+                continue
+            if loaded_hash != _cached_hash(bundled):
+                raise RuntimeError(
+                    f"module {name} is already loaded in this process from {loaded} and differs from the "
+                    f"copy bundled in this FMU ({bundled}); FMUs sharing a process must come from one build")
+
+    # ---- modelDescription ------------------------------------------------------------------------
+    def to_xml(self, model_options=dict()):
+        root = super().to_xml(model_options)
+        root.attrib.pop("generationDateAndTime", None)
+        index = {v.name: i + 1 for i, v in enumerate(self.variables)}
+
+        # units on Real variables, unit definitions
+        for sv in root.find("ModelVariables"):
+            var = self.by_name[sv.get("name")]
+            if var.unit is not None:
+                sv.find("Real").set("unit", var.unit)
+        used = sorted({v.unit for v in self.variables if v.unit is not None})
+        unit_defs = Element("UnitDefinitions")
+        for name in used:
+            unit = SubElement(unit_defs, "Unit", {"name": name})
+            SubElement(unit, "BaseUnit", {k: str(e) for k, e in UNITS[name].items()})
+        children = list(root)
+        position = children.index(root.find("CoSimulation")) + 1
+        root.insert(position, unit_defs)
+
+        # ModelStructure: outputs with their Step Mode dependencies, and the initial unknowns
+        structure = root.find("ModelStructure")
+        for child in list(structure):
+            structure.remove(child)
+        outputs = [v for v in self.variables if v.causality == "output"]
+        if outputs:
+            node = SubElement(structure, "Outputs")
+            for v in outputs:
+                SubElement(node, "Unknown", {"index": str(index[v.name]),
+                                             "dependencies": " ".join(str(index[d]) for d in v.dependencies)})
+            node = SubElement(structure, "InitialUnknowns")
+            for v in outputs:
+                attrib = {"index": str(index[v.name])}
+                if v.initial_deps is not None:
+                    attrib["dependencies"] = " ".join(str(index[d]) for d in sorted(v.initial_deps, key=index.get))
+                SubElement(node, "Unknown", attrib)
+
+        # a GUID that changes exactly when the description or the bundled sources change
+        root.set("guid", "")
+        root.set("guid", "{%s}" % uuid.uuid5(uuid.NAMESPACE_URL, "emcosim:" + self._content_digest(root)))
+        return root
+
+    def _content_digest(self, root: Element) -> str:
+        from xml.etree.ElementTree import tostring
+        digest = hashlib.sha256(tostring(root))
+        if self.resources:
+            resources = Path(self.resources)
+            for name in SHARED_MODULES:
+                for candidate in (resources / name, resources / (name + ".py")):
+                    if candidate.exists():
+                        digest.update(_tree_hash(candidate).encode())
+            script = resources / (type(self).__module__ + ".py")
+            if script.exists():
+                digest.update(script.read_bytes())
+        return digest.hexdigest()

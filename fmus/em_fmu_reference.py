@@ -1,0 +1,50 @@
+"""Adapter: the reference generators of components.references as one FMI 2.0 co-simulation slave.
+
+Integer parameter kind selects the generator (0 constant, 1 sinusoid, 2 smooth_step); every parameter
+of the three generators is a parameter of the FMU (names from their PARAMETERS). The outputs are the
+reference jet (q*, q*', q*'', q*''') at the current communication point; they depend on no input.
+"""
+from __future__ import annotations
+
+from components import catalog, references
+from em_fmu_framework import REFERENCE_JET, EMSlave
+
+KIND_CODES = catalog.REFERENCE_KINDS
+OUTPUTS = REFERENCE_JET
+
+
+class ReferenceSlave(EMSlave):
+    def declare(self) -> None:
+        self.parameter("kind", 1, None, "reference generator: " + ", ".join(
+            f"{code} {name} ({references.KINDS[name].name})" for code, name in KIND_CODES.items()), integer=True)
+        for code, name in KIND_CODES.items():
+            for p in references.KINDS[name].PARAMETERS.values():
+                self.parameter(p.name, p.default, p.unit, f"{p.description} (kind {code}, {name})")
+        all_parameters = ["kind"] + [p for name in KIND_CODES.values() for p in references.KINDS[name].PARAMETERS]
+        for i, (name, unit, description) in enumerate(OUTPUTS):
+            self.output(name, unit, description, (lambda i=i: self.jet()[i]), [], all_parameters)
+        self.reference = None
+        self._jet_time = None
+        self._jet = None
+
+    def make_reference(self) -> references.Reference:
+        kind = self.values["kind"]
+        if kind not in KIND_CODES:
+            raise ValueError(f"parameter kind = {kind} violates kind in {{0, 1, 2}} "
+                             f"({', '.join(f'{c} {n}' for c, n in KIND_CODES.items())})")
+        return catalog.reference(kind, {n: self.values[n] for n in catalog.REFERENCE_PARAMETERS})
+
+    def initialize(self) -> None:
+        self.reference = self.make_reference()
+        self._jet_time = None
+
+    def jet(self) -> tuple[float, float, float, float]:
+        if self._jet_time != self.time or self.reference is None:
+            reference = self.reference if self.reference is not None else self.make_reference()
+            j = reference.jet(self.time)
+            self._jet = (float(j.q[0]), float(j.qd[0]), float(j.qdd[0]), float(j.qddd[0]))
+            self._jet_time = self.time if self.reference is not None else None
+        return self._jet
+
+    def step(self, t: float, h: float) -> bool:
+        return True

@@ -83,6 +83,19 @@ def _build_one(identifier: str, dest: Path, work: Path) -> Path:
     return target
 
 
+def up_to_date(dest: Path | str = DEFAULT_DEST, current: str | None = None) -> bool:
+    """True when every FMU in `dest` was built from the current sources (stamp fingerprint and hashes)."""
+    dest = Path(dest)
+    try:
+        stamp = json.loads((dest / STAMP).read_text())
+    except (OSError, ValueError):
+        return False
+    paths = {identifier: dest / f"{identifier}.fmu" for identifier in FMUS}
+    return (stamp.get("fingerprint") == (current or fingerprint())
+            and all(p.exists() and hashlib.sha256(p.read_bytes()).hexdigest() == stamp.get("fmus", {}).get(i)
+                    for i, p in paths.items()))
+
+
 def build(dest: Path | str = DEFAULT_DEST, force: bool = False, verbose: bool = True) -> dict[str, Path]:
     """Build every FMU into `dest` (skipped when the stamp says the inputs are unchanged).
     Returns model identifier -> FMU path."""
@@ -91,14 +104,7 @@ def build(dest: Path | str = DEFAULT_DEST, force: bool = False, verbose: bool = 
     paths = {identifier: dest / f"{identifier}.fmu" for identifier in FMUS}
     stamp_file = dest / STAMP
     current = fingerprint()
-    try:
-        stamp = json.loads(stamp_file.read_text())
-    except (OSError, ValueError):
-        stamp = {}
-    up_to_date = (not force and stamp.get("fingerprint") == current
-                  and all(p.exists() and hashlib.sha256(p.read_bytes()).hexdigest() == stamp.get("fmus", {}).get(i)
-                          for i, p in paths.items()))
-    if up_to_date:
+    if not force and up_to_date(dest, current):
         if verbose:
             for identifier, path in paths.items():
                 print(f"up to date  {path}")

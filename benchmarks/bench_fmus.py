@@ -10,11 +10,16 @@ paper gives none), its default experiment's step (1e-3 s):
 FMI calls go straight to the FMU's ctypes functions with pre-allocated arrays (what a C master pays);
 "fmpy" is the same through FMU2Slave's Python methods. Inputs vary from step to step like in a loop.
 Targets (issue 3): MEMS plant doStep at h = 1e-6 s <= 50 us; controller set + doStep + get <= 10 us.
+
+The first rows measure the floor that pythonfmu 0.7.0 itself sets, with a trivial slave (a static gain,
+tests/fixtures/emcosim_toy_gain.py) built on the spot: every FMI call crosses into the embedded
+interpreter and back, whatever the slave computes. Each FMU's figure is printed beside that floor.
 """
 from __future__ import annotations
 
 import argparse
 import ctypes
+import math
 import statistics
 import sys
 import time
@@ -180,6 +185,32 @@ def bench_reference(path: Path, n: int) -> list[tuple[str, float, float]]:
     return [("Reference doStep + get", median_us(fmu_ns), median_us(direct_ns))]
 
 
+def bench_floor(n: int) -> list[tuple[str, float, float]]:
+    """pythonfmu's own cost: a trivial slave (y = k x), doStep alone and set + doStep + get."""
+    import tempfile
+    from pythonfmu import FmuBuilder
+
+    with tempfile.TemporaryDirectory() as tmp:
+        fmu = FmuBuilder.build_FMU(ROOT / "tests" / "fixtures" / "emcosim_toy_gain.py", dest=tmp)
+        raw = Raw(Path(fmu))
+        vx, bx = raw.refs(["x"])
+        vy, by = raw.refs(["y"])
+        step_ns, loop_ns = [], []
+        for k in range(n):
+            t0 = time.perf_counter_ns()
+            raw.do_step(raw.c, k * 1e-3, 1e-3, 1)
+            step_ns.append(time.perf_counter_ns() - t0)
+            bx[0] = float(k)
+            t0 = time.perf_counter_ns()
+            raw.set_real(raw.c, vx, 1, bx)
+            raw.do_step(raw.c, k * 1e-3, 1e-3, 1)
+            raw.get_real(raw.c, vy, 1, by)
+            loop_ns.append(time.perf_counter_ns() - t0)
+        raw.free()
+    return [("pythonfmu floor: doStep (trivial slave)", median_us(step_ns), math.nan),
+            ("pythonfmu floor: set + doStep + get", median_us(loop_ns), math.nan)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fmus", default=str(ROOT / "build" / "fmus"), help="folder with the built FMUs")
@@ -189,15 +220,20 @@ def main(argv: list[str] | None = None) -> int:
     if not (folder / "MEMS.fmu").exists():
         import build
         build.build(folder)
-    rows = []
+    rows = bench_floor(args.n)
     for identifier in ("MEMS", "Maglev"):
         rows += bench_plant(folder / f"{identifier}.fmu", identifier, args.n)
     for identifier in CONTROLLERS:
         rows += bench_controller(folder / f"{identifier}.fmu", identifier, args.n)
     rows += bench_reference(folder / "Reference.fmu", args.n)
-    print(f"{'median per communication step':42s} {'FMU [us]':>9s} {'components [us]':>16s} {'ratio':>6s}")
+    floor_step, floor_loop = rows[0][1], rows[1][1]
+    print(f"{'median per communication step':42s} {'FMU [us]':>9s} {'components [us]':>16s} {'FMU/comp.':>9s} "
+          f"{'FMU/floor':>9s}")
     for name, fmu_us, direct_us in rows:
-        print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:6.2f}")
+        floor = floor_step if "doStep (h" in name or name.endswith("(trivial slave)") else floor_loop
+        print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:9.2f} {fmu_us / floor:9.2f}")
+    print("floor: the same FMI calls on a trivial pythonfmu slave, measured in this run (FMU/floor = 1 means "
+          "the slave's own work costs nothing)")
     return 0
 
 

@@ -5,10 +5,12 @@ states the closed loop it enforces: eta' = F_d grad H_d(eta, t), eq. (closedloop
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import closed_loop
-from .ph_plant import EMPlant, Jet
+from .ph_plant import EMPlant, Jet, OneDOFPlant
 
 
 def as_matrix(value, shape: tuple[int, int], name: str, owner: str) -> np.ndarray:
@@ -39,6 +41,24 @@ def quadratic(x: np.ndarray, center: np.ndarray, W: np.ndarray):
     return 0.5 * d @ W @ d
 
 
+@dataclass(frozen=True)
+class Scalars:
+    """The design matrices of a one-degree-of-freedom loop (n_m = n_e = 1) as plain numbers.
+
+    With every matrix 1 x 1, the matrix laws become scalar expressions; the controllers evaluate
+    those for OneDOFPlant plants (numpy's cost per call on 1 x 1 arrays would dominate a step of an
+    FMU), and the matrix forms for every other plant. The tests check both against eq. (closedloop).
+    """
+
+    m_inv: float        # M^-1
+    G_inv: float        # G_e^-1
+    JR_bar: float       # J_e - R_e_bar
+    RJ: float           # R_e - J_e
+    K_e: float          # R_e_bar - R_e, eq. (barRe)
+    D_d: float          # coupled damping, eq. (closedloop)
+    Gamma: float        # coupling of the target structure, eq. (closedloop)
+
+
 class Controller:
     """Base of the four controllers.
 
@@ -61,6 +81,11 @@ class Controller:
         self.K_e = self.R_e_bar - plant.R_e                       # eq. (barRe)
         self.JR_bar = plant.J_e - self.R_e_bar                    # J_e - R_e_bar, invertible
         self.G_inv = np.linalg.inv(plant.G_e)
+        self.scalars = None
+        if isinstance(plant, OneDOFPlant):
+            self.scalars = Scalars(1.0 / plant.m, float(self.G_inv[0, 0]), float(self.JR_bar[0, 0]),
+                                   float((plant.R_e - plant.J_e)[0, 0]), float(self.K_e[0, 0]),
+                                   float(self.D_d[0, 0]), float(self.Gamma[0, 0]))
 
     def F_d(self) -> np.ndarray:
         """Target structure matrix F_d = J_d - R_d, eqs. (closedloop), (Eq:R-J)."""
@@ -68,6 +93,19 @@ class Controller:
         return closed_loop.F_d(p.R_m, p.J_e, self.R_e_bar, self.Gamma, self.D_d)
 
     def u(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
+        """The control law at state eta (and reference jet, if tracking): u, shape (n_e,)."""
+        if self.scalars is not None:
+            jet_values = None if jet is None else tuple(v[0] for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
+            return np.array([self.u_scalar(eta[0], eta[1], eta[2], jet_values)])
+        return self.u_matrix(eta, jet)
+
+    def u_matrix(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
+        """The control law in the paper's general matrix form."""
+        raise NotImplementedError
+
+    def u_scalar(self, q, p, x_e, jet: tuple | None = None):
+        """The control law for a OneDOFPlant: u from the numbers q, p, x_e and the jet
+        (q*, dq*/dt, d2q*/dt2, d3q*/dt3) as numbers. Accepts complex numbers (complex-step derivatives)."""
         raise NotImplementedError
 
     def H_d(self, eta: np.ndarray, jet: Jet | None = None):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .parameters import Parameter, resolve
-from .ph_plant import DomainError, EMPlant
+from .ph_plant import DomainError, OneDOFPlant
 
 PARAMETERS = {p.name: p for p in [
     Parameter("k", 0.64042, "H.m", "inductance constant: inductance is k / (c - q)"),
@@ -30,12 +30,10 @@ STATES = {
 INPUT = ("u", "V", "coil voltage")
 
 
-class Maglev(EMPlant):
+class Maglev(OneDOFPlant):
     """Magnetic levitation system with the paper's Section 7.2 parameters as defaults."""
 
     name = "magnetic levitation system"
-    n_m = 1
-    n_e = 1
 
     def __init__(self, **params: float):
         self.params = resolve(PARAMETERS, params, self.name)
@@ -51,39 +49,45 @@ class Maglev(EMPlant):
         """Gamma = 1/(2k) of Assumption 4: grad_q H_e = -Gamma grad phi_2(x_e), grad phi_2 = x_e^2."""
         return np.array([[1.0 / (2.0 * self.k)]])
 
+    # phi_2 of Assumption 2 / 4, eq. (assHe): Section 7.2 gives grad phi_2 = x_e^2, so phi_2 = x_e^3 / 3
+    def phi_s(self, x_e):
+        return x_e ** 3 / 3.0
+
+    def dphi(self, x_e):
+        return x_e ** 2
+
+    def d2phi(self, x_e):
+        return 2.0 * x_e
+
     def phi(self, x_e):
-        """phi_2(x_e) = x_e^3 / 3 (Section 7.2: grad phi_2 = x_e^2), eq. (assHe)."""
-        return x_e[0] ** 3 / 3.0
+        return self.phi_s(x_e[0])
 
     def grad_phi(self, x_e):
-        return np.array([x_e[0] ** 2])
+        return np.array([self.dphi(x_e[0])])
 
     def hess_phi(self, x_e):
-        return np.array([[2.0 * x_e[0]]])
+        return np.array([[self.d2phi(x_e[0])]])
 
-    def M_inv(self, q):
-        return np.array([[1.0 / self.m]])
+    def V_s(self, q):
+        return self.b * q                                          # Section 7.2: V = b q
 
-    def V(self, q):
-        return self.b * q[0]
+    def dV(self, q):
+        return self.b + 0.0 * q
 
-    def grad_V(self, q):
-        return np.array([self.b + 0.0 * q[0]])
+    def d2V(self, q):
+        return 0.0 * q
 
-    def hess_V(self, q):
-        return np.zeros((1, 1))
+    def psi(self, q):
+        return (self.c - q) / self.k                               # Section 7.2: H_e = (c - q) x_e^2 / (2k)
 
-    def Psi(self, q):
-        return np.array([[(self.c - q[0]) / self.k]])
+    def dpsi(self, q):
+        return -1.0 / self.k + 0.0 * q
 
-    def dPsi(self, q):
-        return np.array([[[-1.0 / self.k + 0.0 * q[0]]]])
-
-    def d2Psi(self, q):
-        return np.zeros((1, 1, 1, 1))
+    def d2psi(self, q):
+        return 0.0 * q
 
     def domain_margin(self, eta):
-        return float(self.c - np.real(eta[0]))
+        return float(self.c - eta[0].real)
 
     def check_state(self, eta):
         super().check_state(eta)

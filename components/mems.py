@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .parameters import Parameter, resolve
-from .ph_plant import DomainError, EMPlant
+from .ph_plant import DomainError, OneDOFPlant
 
 PARAMETERS = {p.name: p for p in [
     Parameter("c0", 15e-6, "m", "position offset of the capacitor: capacitance is c1 (q + c0)"),
@@ -31,12 +31,10 @@ STATES = {
 INPUT = ("u", "V", "voltage applied to the actuator")
 
 
-class MEMS(EMPlant):
+class MEMS(OneDOFPlant):
     """MEMS optical switch with the paper's Section 7 parameters as defaults."""
 
     name = "MEMS optical switch"
-    n_m = 1
-    n_e = 1
 
     def __init__(self, **params: float):
         self.params = resolve(PARAMETERS, params, self.name)
@@ -47,29 +45,26 @@ class MEMS(EMPlant):
         self.R_e = np.array([[1.0 / self.r_e]])        # Section 7.1: R_e = 1/r_e
         self.G_e = np.array([[1.0 / self.r_e]])        # Section 7.1: G_e = 1/r_e
 
-    def M_inv(self, q):
-        return np.array([[1.0 / self.m]])
+    def V_s(self, q):
+        return 0.5 * self.a1 * q ** 2 + 0.25 * self.a2 * q ** 4    # Section 7.1: V = a1 q^2/2 + a2 q^4/4
 
-    def V(self, q):
-        return 0.5 * self.a1 * q[0] ** 2 + 0.25 * self.a2 * q[0] ** 4
+    def dV(self, q):
+        return self.a1 * q + self.a2 * q ** 3
 
-    def grad_V(self, q):
-        return np.array([self.a1 * q[0] + self.a2 * q[0] ** 3])
+    def d2V(self, q):
+        return self.a1 + 3.0 * self.a2 * q ** 2
 
-    def hess_V(self, q):
-        return np.array([[self.a1 + 3.0 * self.a2 * q[0] ** 2]])
+    def psi(self, q):
+        return 1.0 / (self.c1 * (q + self.c0))                     # Section 7.1: Psi = 1/(c1 (q + c0))
 
-    def Psi(self, q):
-        return np.array([[1.0 / (self.c1 * (q[0] + self.c0))]])
+    def dpsi(self, q):
+        return -1.0 / (self.c1 * (q + self.c0) ** 2)
 
-    def dPsi(self, q):
-        return np.array([[[-1.0 / (self.c1 * (q[0] + self.c0) ** 2)]]])
-
-    def d2Psi(self, q):
-        return np.array([[[[2.0 / (self.c1 * (q[0] + self.c0) ** 3)]]]])
+    def d2psi(self, q):
+        return 2.0 / (self.c1 * (q + self.c0) ** 3)
 
     def domain_margin(self, eta):
-        return float(np.real(eta[0]) + self.c0)
+        return float(eta[0].real + self.c0)
 
     def check_state(self, eta):
         super().check_state(eta)

@@ -13,6 +13,7 @@ Every function accepts complex arrays, so derivatives can be checked by the comp
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -185,34 +186,11 @@ class EMPlant:
     def feasible_state(self, jet: Jet) -> tuple[np.ndarray, np.ndarray]:
         """(eta*, x_e*') of a reference jet, from the mechanical equations (Definition 1).
 
-        The p-row of eq. (open-loop elecmech) gives the electrical force the reference needs,
-        -grad_q H_e(q*, x_e*) = p*' + grad_q H_1(q*, p*) + R_m q*'  =: F*,
-        which determines x_e*. This generic form covers n_m = n_e = 1 with constant M, where
-        -1/2 Psi'(q) x_e^2 = F* has the real root x_e* = s sqrt(2 F* / (-Psi'(q*))), s = self.x_e_sign,
-        when F*/(-Psi'(q*)) > 0. Plants of other dimensions override this method.
+        The p-row of eq. (open-loop elecmech) fixes the electrical force -grad_q H_e(q*, x_e*) that
+        the reference needs; which x_e* delivers it depends on the plant (OneDOFPlant.feasible_scalar
+        for n_m = n_e = 1). Plants of other dimensions implement this method.
         """
-        if self.n_m != 1 or self.n_e != 1 or not self.constant_mass:
-            raise NotImplementedError(f"{self.name}: feasible_state needs n_m = n_e = 1 and constant M; "
-                                      "override it for this plant")
-        q, qd, qdd, qddd = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
-        self.check_state(np.concatenate([q, np.zeros(self.n_m + self.n_e)]))
-        m = 1.0 / self.M_inv(q)[0, 0]
-        Rm = self.R_m[0, 0]
-        force = m * qdd + Rm * qd + self.grad_V(q)                           # F* (p-row)
-        force_dot = m * qddd + Rm * qdd + self.hess_V(q)[0, 0] * qd          # dF*/dt
-        g = -self.dPsi(q)[0, 0, 0]                                          # -Psi'(q*)
-        g_dot = -self.d2Psi(q)[0, 0, 0, 0] * qd[0]
-        ratio = 2.0 * force[0] / g
-        if not ratio > 0:
-            raise ValueError(
-                f"{self.name}: infeasible reference at q* = {q[0]:.6g}: no real x_e* solves "
-                f"-1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) = {force[0]:.6g} "
-                f"(needs (m q*'' + R_m q*' + V'(q*)) / (-Psi'(q*)) > 0)")
-        x_e = self.x_e_sign * np.sqrt(ratio)
-        # d/dt (x_e^2) = 2 (F' g - F g') / g^2  =>  x_e' = (F' g - F g') / (x_e g^2)
-        x_e_dot = (force_dot[0] * g - force[0] * g_dot) / (x_e * g * g)
-        p = m * qd
-        return np.concatenate([q, p, [x_e]]), np.array([x_e_dot])
+        raise NotImplementedError(f"{self.name}: feasible_state is not implemented for this plant")
 
     x_e_sign: float = 1.0
     """Which root of the electrical equilibrium equation the reference uses (+1: positive charge / flux)."""
@@ -221,3 +199,99 @@ class EMPlant:
         """Assignable equilibrium eta_d = (q_d, 0, x_e_d) of the set E (Section 3)."""
         z = np.zeros(self.n_m)
         return self.feasible_state(Jet(np.atleast_1d(np.asarray(q_d, dtype=float)), z, z, z))[0]
+
+
+class OneDOFPlant(EMPlant):
+    """A plant with n_m = n_e = 1 and a constant mass m (both of the paper's Section 7 examples).
+
+    A subclass writes its model once, as scalar functions of the position q (floats, or complex
+    numbers for the complex-step tests): V_s, dV, d2V (the potential energy and its derivatives) and
+    psi, dpsi, d2psi (Psi(q) of eq. (elec energy) and its derivatives); it sets m, R_m, J_e, R_e, G_e.
+    EMPlant's matrix interface is built from these functions. The per-step code paths (controllers
+    in FMUs, the plant integrator in doStep) call the scalar functions: numpy's cost per call on
+    1 x 1 arrays would dominate there.
+    """
+
+    n_m = 1
+    n_e = 1
+    constant_mass = True
+    m: float
+
+    # ---- the model in scalars (a concrete plant implements these) --------------------------------
+    def V_s(self, q):
+        """Potential energy V(q) [J]."""
+        raise NotImplementedError
+
+    def dV(self, q):
+        """V'(q) [N]."""
+        raise NotImplementedError
+
+    def d2V(self, q):
+        """V''(q) [N/m]."""
+        raise NotImplementedError
+
+    def psi(self, q):
+        """Psi(q), the inverse capacitance or inductance of eq. (elec energy)."""
+        raise NotImplementedError
+
+    def dpsi(self, q):
+        """Psi'(q)."""
+        raise NotImplementedError
+
+    def d2psi(self, q):
+        """Psi''(q)."""
+        raise NotImplementedError
+
+    # ---- EMPlant's matrix interface ----------------------------------------------------------------
+    def M_inv(self, q):
+        return np.array([[1.0 / self.m]])
+
+    def V(self, q):
+        return self.V_s(q[0])
+
+    def grad_V(self, q):
+        return np.array([self.dV(q[0])])
+
+    def hess_V(self, q):
+        return np.array([[self.d2V(q[0])]])
+
+    def Psi(self, q):
+        return np.array([[self.psi(q[0])]])
+
+    def dPsi(self, q):
+        return np.array([[[self.dpsi(q[0])]]])
+
+    def d2Psi(self, q):
+        return np.array([[[[self.d2psi(q[0])]]]])
+
+    # ---- feasible references (Definition 1) --------------------------------------------------------
+    def feasible_state(self, jet: Jet) -> tuple[np.ndarray, np.ndarray]:
+        q, p, x_e, x_e_dot = self.feasible_scalar(*(float(np.asarray(v).reshape(-1)[0])
+                                                     for v in (jet.q, jet.qd, jet.qdd, jet.qddd)))
+        return np.array([q, p, x_e]), np.array([x_e_dot])
+
+    def feasible_scalar(self, q: float, qd: float, qdd: float, qddd: float) -> tuple[float, float, float, float]:
+        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''), Definition 1.
+
+        The p-row of eq. (open-loop elecmech) gives the electrical force the reference needs,
+            -1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) =: F*,
+        whose real root is x_e* = s sqrt(2 F* / g), g = -Psi'(q*), s = x_e_sign, when F* / g > 0.
+        Differentiating x_e*^2 = 2 F* / g in time: x_e*' = (F*' g - F* g') / (x_e* g^2).
+        """
+        if not (math.isfinite(q) and self.domain_margin((q, 0.0, 0.0)) > 0):
+            self.check_state(np.array([q, 0.0, 0.0]))                   # raises with the reason
+        m, R_m = self.m, self.__dict__.get("_R_m_scalar")
+        if R_m is None:                                     # plant matrices are fixed after construction
+            R_m = self._R_m_scalar = float(self.R_m[0, 0])
+        force = m * qdd + R_m * qd + self.dV(q)                       # F* (p-row)
+        force_dot = m * qddd + R_m * qdd + self.d2V(q) * qd             # dF*/dt
+        g = -self.dpsi(q)
+        g_dot = -self.d2psi(q) * qd
+        ratio = 2.0 * force / g
+        if not ratio > 0:
+            raise ValueError(
+                f"{self.name}: infeasible reference at q* = {q:.6g}: no real x_e* solves "
+                f"-1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) = {force:.6g} "
+                f"(needs (m q*'' + R_m q*' + V'(q*)) / (-Psi'(q*)) > 0)")
+        x_e = self.x_e_sign * math.sqrt(ratio)
+        return q, m * qd, x_e, (force_dot * g - force * g_dot) / (x_e * g * g)

@@ -23,10 +23,10 @@ its mechanics ~1e-4 s. Two things make a communication step both cheap and accur
 
 Without (1) the layer would be resolved by the error control: correct, but ~10-30 substeps per step.
 
-The fast path (`_ScalarModel`) evaluates eq. (open-loop elecmech) with scalar arithmetic for
-n_m = n_e = 1 and a constant mass, from the plant's own V', V'', Psi, Psi', Psi'' and its constant
-F and g: the same equations as `EMPlant.f` and `EMPlant.jacobian`, which the tests pin it to.
-Any other plant with three states uses `EMPlant.f` and `EMPlant.jacobian` directly (slower).
+The fast path (`_ScalarModel`) evaluates eq. (open-loop elecmech) with scalar arithmetic for a
+OneDOFPlant (n_m = n_e = 1, constant mass), from the plant's own scalar V', V'', Psi, Psi', Psi'' and
+its constant F and g: the same equations as `EMPlant.f` and `EMPlant.jacobian`, which the tests pin
+it to. Any other plant with three states uses `EMPlant.f` and `EMPlant.jacobian` directly (slower).
 
 `simulate_zoh` is the tight-tolerance reference for the same problem (scipy's Radau, step by step).
 """
@@ -37,7 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .ph_plant import DomainError, EMPlant
+from .ph_plant import DomainError, EMPlant, OneDOFPlant
 
 DEFAULT_RTOL = 1e-8
 LAYER_DECAY = 40.0          # alpha h above which exp(-alpha h) < 5e-18: the layer ends inside the step
@@ -100,11 +100,13 @@ def mechanical_time(plant: EMPlant) -> float:
 
 
 class _ScalarModel:
-    """eq. (open-loop elecmech) for n_m = n_e = 1 and constant M, in scalar arithmetic.
+    """eq. (open-loop elecmech) for a OneDOFPlant, in scalar arithmetic with the plant's own
+    V', V'', Psi, Psi', Psi'' (OneDOFPlant's scalar functions) and its constant F and g:
 
     grad H = (V' + 1/2 x_e^2 Psi', p/m, Psi x_e); hess H = [[V'' + 1/2 x_e^2 Psi'', 0, x_e Psi'],
-    [0, 1/m, 0], [x_e Psi', 0, Psi]]; f = F grad H + g u and J = F hess H with the plant's constant
-    F = [[0, 1, 0], [-1, -R_m, 0], [0, 0, J_e - R_e]] and g = [0, 0, G_e].
+    [0, 1/m, 0], [x_e Psi', 0, Psi]]; f = F grad H + g u and J = F hess H with
+    F = [[0, 1, 0], [-1, -R_m, 0], [0, 0, J_e - R_e]] and g = [0, 0, G_e]. The tests pin this to
+    EMPlant.f and EMPlant.jacobian.
     """
 
     def __init__(self, plant: EMPlant):
@@ -116,39 +118,30 @@ class _ScalarModel:
                                                      float(F[2, 2]))
         self.g_x = float(g[2, 0])
         self.m_inv = float(plant.M_inv(np.zeros(1))[0, 0])
-        self.grad_V, self.hess_V = plant.grad_V, plant.hess_V
-        self.Psi, self.dPsi, self.d2Psi = plant.Psi, plant.dPsi, plant.d2Psi
+        if isinstance(plant, OneDOFPlant):
+            self.dV, self.d2V = plant.dV, plant.d2V
+            self.Psi, self.dPsi, self.d2Psi = plant.psi, plant.dpsi, plant.d2psi
 
     def psi(self, q: float) -> tuple[float, float]:
         """(Psi(q), Psi'(q))."""
-        qa = (q,)
-        return float(self.Psi(qa)[0][0]), float(self.dPsi(qa)[0][0][0])
+        return self.Psi(q), self.dPsi(q)
 
     def f(self, q: float, p: float, x: float, u: float) -> tuple[float, float, float]:
-        qa = (q,)
-        dV = float(self.grad_V(qa)[0])
-        Psi = float(self.Psi(qa)[0][0])
-        dPsi = float(self.dPsi(qa)[0][0][0])
         gp = self.m_inv * p
         return (self.F_qp * gp,
-                self.F_pq * (dV + 0.5 * x * x * dPsi) + self.F_pp * gp,
-                self.F_xx * Psi * x + self.g_x * u)
+                self.F_pq * (self.dV(q) + 0.5 * x * x * self.dPsi(q)) + self.F_pp * gp,
+                self.F_xx * self.Psi(q) * x + self.g_x * u)
 
     def f_jac(self, q: float, p: float, x: float, u: float):
         """f and the nonzero entries (J_qp, J_pq, J_pp, J_px, J_xq, J_xx) of J = F hess H."""
-        qa = (q,)
-        dV = float(self.grad_V(qa)[0])
-        d2V = float(self.hess_V(qa)[0][0])
-        Psi = float(self.Psi(qa)[0][0])
-        dPsi = float(self.dPsi(qa)[0][0][0])
-        d2Psi = float(self.d2Psi(qa)[0][0][0][0])
+        Psi, dPsi = self.Psi(q), self.dPsi(q)
         gp = self.m_inv * p
         f = (self.F_qp * gp,
-             self.F_pq * (dV + 0.5 * x * x * dPsi) + self.F_pp * gp,
+             self.F_pq * (self.dV(q) + 0.5 * x * x * dPsi) + self.F_pp * gp,
              self.F_xx * Psi * x + self.g_x * u)
         h_qx = x * dPsi
-        jac = (self.F_qp * self.m_inv, self.F_pq * (d2V + 0.5 * x * x * d2Psi), self.F_pp * self.m_inv,
-               self.F_pq * h_qx, self.F_xx * h_qx, self.F_xx * Psi)
+        jac = (self.F_qp * self.m_inv, self.F_pq * (self.d2V(q) + 0.5 * x * x * self.d2Psi(q)),
+               self.F_pp * self.m_inv, self.F_pq * h_qx, self.F_xx * h_qx, self.F_xx * Psi)
         return f, jac
 
 
@@ -158,6 +151,10 @@ class _ArrayModel(_ScalarModel):
     def __init__(self, plant: EMPlant):
         super().__init__(plant)
         self.plant = plant
+
+    def psi(self, q):
+        qa = np.array([q])
+        return float(self.plant.Psi(qa)[0, 0]), float(self.plant.dPsi(qa)[0, 0, 0])
 
     def f(self, q, p, x, u):
         return tuple(float(v) for v in self.plant.f(np.array([q, p, x]), np.array([u])))
@@ -184,9 +181,9 @@ class PlantStepper:
         self.plant = plant
         self.rtol = float(rtol)
         self.max_substeps = int(max_substeps)
-        constant_mass = not np.any(plant.dM_inv(np.zeros(1)))
-        self.model = _ScalarModel(plant) if constant_mass else _ArrayModel(plant)
-        self.dense = not constant_mass
+        one_dof = isinstance(plant, OneDOFPlant)
+        self.model = _ScalarModel(plant) if one_dof else _ArrayModel(plant)
+        self.dense = not one_dof
         self.scale = tuple(float(s) for s in nominal_scale(plant))
         self.t_mech = mechanical_time(plant)
         self.h_next = 0.0
@@ -243,6 +240,7 @@ class PlantStepper:
         iq, ip, ix = 1.0 / sq, 1.0 / sp, 1.0 / sx
         rtol = self.rtol
         model, plant = self.model, self.plant
+        rodas4 = self._rodas4_dense if self.dense else _rodas4_structured
         # scaled state xi = eta / s; scaled f_i = f_i / s_i; scaled J_ij = J_ij s_j / s_i
         y = (q * iq, p * ip, x * ix)
         t = 0.0
@@ -254,7 +252,7 @@ class PlantStepper:
             last = hs >= remaining * (1.0 - 1e-9)
             hh = remaining if last else hs
             try:
-                y_new, err = self._rodas4(model, y, u, hh, iq, ip, ix, sq, sp, sx)
+                y_new, err = rodas4(model, y, u, hh, iq, ip, ix, sq, sp, sx)
                 e0, e1, e2 = err
                 n0 = rtol * (1.0 + max(abs(y[0]), abs(y_new[0])))
                 n1 = rtol * (1.0 + max(abs(y[1]), abs(y_new[1])))
@@ -287,20 +285,11 @@ class PlantStepper:
                 raise StepFailure(f"{plant.name}: more than {self.max_substeps} substeps in a step of {h:.6g} s "
                                   f"(reached t + {t:.6g} s)")
 
-    def _rodas4(self, model, y, u, h, iq, ip, ix, sq, sp, sx):
-        """One RODAS4 step in scaled variables: (y_new, error estimate)."""
+    def _rodas4_dense(self, model, y, u, h, iq, ip, ix, sq, sp, sx):
+        """One RODAS4 step in scaled variables, dense Jacobian: (y_new, error estimate)."""
         f0, jac = model.f_jac(y[0] * sq, y[1] * sp, y[2] * sx, u)
         gi = 1.0 / (h * _GAMMA)
-        if self.dense:
-            J = jac * np.outer([iq, ip, ix], [sq, sp, sx])
-            lu = _lu3(gi * np.eye(3) - J)
-        else:
-            J_qp, J_pq, J_pp, J_px, J_xq, J_xx = jac
-            # G = I/(h gamma) - J with J = [[0, a, 0], [b, c, d], [e, 0, k]] (scaled): eliminate q and x.
-            a, b, c = J_qp * sp * iq, J_pq * sq * ip, J_pp
-            d, e, k = J_px * sx * ip, J_xq * sq * ix, J_xx
-            lu = (gi, a, b, c, d, e, gi - k, 1.0 / ((gi - c) - a * b / gi - a * d * e / (gi * (gi - k))))
-        solve = _solve_dense if self.dense else _solve_structured
+        lu = _lu3(gi * np.eye(3) - jac * np.outer([iq, ip, ix], [sq, sp, sx]))
         Ks = []
         y0, y1, y2 = y
         r = (f0[0] * iq, f0[1] * ip, f0[2] * ix)
@@ -317,9 +306,65 @@ class PlantStepper:
                     c2 += c_ * k2
                 fi = model.f(Y0 * sq, Y1 * sp, Y2 * sx, u)
                 r = (fi[0] * iq + hi * c0, fi[1] * ip + hi * c1, fi[2] * ix + hi * c2)
-            Ks.append(solve(lu, r))
+            Ks.append(_solve_dense(lu, r))
         K6 = Ks[5]
         return (Y0 + K6[0], Y1 + K6[1], Y2 + K6[2]), K6
+
+
+# RODAS4's coefficients by name, for the written-out stages of `_rodas4_structured`
+(_a21,), (_a31, _a32), (_a41, _a42, _a43), (_a51, _a52, _a53, _a54), (_a61, _a62, _a63, _a64, _a65) = _A[1:]
+(_c21,), (_c31, _c32), (_c41, _c42, _c43), (_c51, _c52, _c53, _c54), (_c61, _c62, _c63, _c64, _c65) = _C[1:]
+
+
+def _rodas4_structured(model, y, u, h, iq, ip, ix, sq, sp, sx):
+    """One RODAS4 step in scaled variables for J = [[0, a, 0], [b, c, d], [e, 0, k]] (a OneDOFPlant):
+    (y_new, error estimate). The same method as `PlantStepper._rodas4_dense`, with the six stages
+    written out (a loop over the coefficient table would cost more than the arithmetic) and the
+    linear solves done by elimination."""
+    f0, (J_qp, J_pq, J_pp, J_px, J_xq, J_xx) = model.f_jac(y[0] * sq, y[1] * sp, y[2] * sx, u)
+    g = 1.0 / (h * _GAMMA)
+    # G = I/(h gamma) - J (scaled): eliminate K_q and K_x into the K_p equation
+    a, b, c = J_qp * sp * iq, J_pq * sq * ip, J_pp
+    d, e, gk = J_px * sx * ip, J_xq * sq * ix, g - J_xx
+    lu = (g, a, b, c, d, e, gk, 1.0 / ((g - c) - a * b / g - a * d * e / (g * gk)))
+
+    f = model.f
+    hi = 1.0 / h
+    y0, y1, y2 = y
+    # stage 1
+    p0, p1, p2 = _solve_structured(lu, (f0[0] * iq, f0[1] * ip, f0[2] * ix))
+    # stage 2
+    fi = f((y0 + _a21 * p0) * sq, (y1 + _a21 * p1) * sp, (y2 + _a21 * p2) * sx, u)
+    q0, q1, q2 = _solve_structured(lu, (fi[0] * iq + hi * _c21 * p0, fi[1] * ip + hi * _c21 * p1,
+                                        fi[2] * ix + hi * _c21 * p2))
+    # stage 3
+    fi = f((y0 + _a31 * p0 + _a32 * q0) * sq, (y1 + _a31 * p1 + _a32 * q1) * sp,
+           (y2 + _a31 * p2 + _a32 * q2) * sx, u)
+    r0, r1, r2 = _solve_structured(lu, (fi[0] * iq + hi * (_c31 * p0 + _c32 * q0),
+                                        fi[1] * ip + hi * (_c31 * p1 + _c32 * q1),
+                                        fi[2] * ix + hi * (_c31 * p2 + _c32 * q2)))
+    # stage 4
+    fi = f((y0 + _a41 * p0 + _a42 * q0 + _a43 * r0) * sq, (y1 + _a41 * p1 + _a42 * q1 + _a43 * r1) * sp,
+           (y2 + _a41 * p2 + _a42 * q2 + _a43 * r2) * sx, u)
+    s0, s1, s2 = _solve_structured(lu, (fi[0] * iq + hi * (_c41 * p0 + _c42 * q0 + _c43 * r0),
+                                        fi[1] * ip + hi * (_c41 * p1 + _c42 * q1 + _c43 * r1),
+                                        fi[2] * ix + hi * (_c41 * p2 + _c42 * q2 + _c43 * r2)))
+    # stage 5
+    fi = f((y0 + _a51 * p0 + _a52 * q0 + _a53 * r0 + _a54 * s0) * sq,
+           (y1 + _a51 * p1 + _a52 * q1 + _a53 * r1 + _a54 * s1) * sp,
+           (y2 + _a51 * p2 + _a52 * q2 + _a53 * r2 + _a54 * s2) * sx, u)
+    t0, t1, t2 = _solve_structured(lu, (fi[0] * iq + hi * (_c51 * p0 + _c52 * q0 + _c53 * r0 + _c54 * s0),
+                                        fi[1] * ip + hi * (_c51 * p1 + _c52 * q1 + _c53 * r1 + _c54 * s1),
+                                        fi[2] * ix + hi * (_c51 * p2 + _c52 * q2 + _c53 * r2 + _c54 * s2)))
+    # stage 6: Y_6 = y + sum_j a_6j K_j; y_new = Y_6 + K_6 (stiffly accurate), K_6 is the error estimate
+    Y0 = y0 + _a61 * p0 + _a62 * q0 + _a63 * r0 + _a64 * s0 + _a65 * t0
+    Y1 = y1 + _a61 * p1 + _a62 * q1 + _a63 * r1 + _a64 * s1 + _a65 * t1
+    Y2 = y2 + _a61 * p2 + _a62 * q2 + _a63 * r2 + _a64 * s2 + _a65 * t2
+    fi = f(Y0 * sq, Y1 * sp, Y2 * sx, u)
+    K6 = _solve_structured(lu, (fi[0] * iq + hi * (_c61 * p0 + _c62 * q0 + _c63 * r0 + _c64 * s0 + _c65 * t0),
+                                  fi[1] * ip + hi * (_c61 * p1 + _c62 * q1 + _c63 * r1 + _c64 * s1 + _c65 * t1),
+                                  fi[2] * ix + hi * (_c61 * p2 + _c62 * q2 + _c63 * r2 + _c64 * s2 + _c65 * t2)))
+    return (Y0 + K6[0], Y1 + K6[1], Y2 + K6[2]), K6
 
 
 def _solve_structured(lu, r):

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import closed_loop
-from .controller import Controller, as_matrix, check_positive_definite, quadratic
-from .ph_plant import EMPlant
+from .controller import Controller, Scalars, as_matrix, check_positive_definite, quadratic
+from .ph_plant import EMPlant, OneDOFPlant
 
 
 def law_c1(controller: Controller, eta: np.ndarray, grad_Phi: np.ndarray) -> np.ndarray:
@@ -22,6 +22,11 @@ def law_c1(controller: Controller, eta: np.ndarray, grad_Phi: np.ndarray) -> np.
     return controller.G_inv @ (controller.JR_bar @ grad_Phi
                                - controller.K_e @ plant.Psi(q) @ x_e
                                + controller.D_d @ plant.M_inv(q) @ p)
+
+
+def law_c1_scalar(plant: OneDOFPlant, s: Scalars, q, p, x_e, grad_Phi):
+    """eq. (c1) for n_m = n_e = 1: u = G_e^-1 { (J_e - R_e_bar) dPhi_1 - K_e Psi(q) x_e + D_d p / m }."""
+    return s.G_inv * (s.JR_bar * grad_Phi - s.K_e * plant.psi(q) * x_e + s.D_d * s.m_inv * p)
 
 
 class Proposition1(Controller):
@@ -49,8 +54,12 @@ class Proposition1(Controller):
     def grad_Phi1(self, x_e):
         return self.W @ (x_e - self.center)
 
-    def u(self, eta, jet=None):
+    def u_matrix(self, eta, jet=None):
         return law_c1(self, eta, self.grad_Phi1(self.plant.split(eta)[2]))
+
+    def u_scalar(self, q, p, x_e, jet=None):
+        W, center = float(self.W[0, 0]), float(self.center[0])
+        return law_c1_scalar(self.plant, self.scalars, q, p, x_e, W * (x_e - center))
 
     def H_d(self, eta, jet=None):
         x_e = self.plant.split(eta)[2]

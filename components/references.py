@@ -24,8 +24,13 @@ class Reference:
         for k, v in self.params.items():
             setattr(self, k, v)
 
-    def jet(self, t: float) -> Jet:
+    def values(self, t: float) -> tuple[float, float, float, float]:
+        """(q*, q*', q*'', q*''') at time t, as numbers."""
         raise NotImplementedError
+
+    def jet(self, t: float) -> Jet:
+        """The jet at time t as arrays of shape (1,)."""
+        return Jet(*(np.array([v]) for v in self.values(t)))
 
 
 class Constant(Reference):
@@ -36,9 +41,8 @@ class Constant(Reference):
         Parameter("q_d", 3e-5, "m", "set-point position", "any"),
     ]}
 
-    def jet(self, t: float) -> Jet:
-        z = np.zeros(1)
-        return Jet(np.array([self.q_d]), z, z, z)
+    def values(self, t: float) -> tuple[float, float, float, float]:
+        return self.q_d, 0.0, 0.0, 0.0
 
 
 class Sinusoid(Reference):
@@ -52,11 +56,10 @@ class Sinusoid(Reference):
         Parameter("phase", 0.0, "rad", "phase at t = 0", "any"),
     ]}
 
-    def jet(self, t: float) -> Jet:
+    def values(self, t: float) -> tuple[float, float, float, float]:
         a, w, th = self.amplitude, self.omega, self.omega * t + self.phase
         s, c = math.sin(th), math.cos(th)
-        return Jet(np.array([self.offset + a * s]), np.array([a * w * c]),
-                   np.array([-a * w ** 2 * s]), np.array([-a * w ** 3 * c]))
+        return self.offset + a * s, a * w * c, -a * w ** 2 * s, -a * w ** 3 * c
 
 
 class SmoothStep(Reference):
@@ -74,15 +77,14 @@ class SmoothStep(Reference):
         Parameter("duration", 1e-3, "s", "duration of the transition"),
     ]}
 
-    def jet(self, t: float) -> Jet:
+    def values(self, t: float) -> tuple[float, float, float, float]:
         tau = min(max((t - self.t_start) / self.duration, 0.0), 1.0)
         s = 35 * tau**4 - 84 * tau**5 + 70 * tau**6 - 20 * tau**7
         s1 = 140 * tau**3 - 420 * tau**4 + 420 * tau**5 - 140 * tau**6
         s2 = 420 * tau**2 - 1680 * tau**3 + 2100 * tau**4 - 840 * tau**5
         s3 = 840 * tau - 5040 * tau**2 + 8400 * tau**3 - 4200 * tau**4
         d, T = self.q_to - self.q_from, self.duration
-        return Jet(np.array([self.q_from + d * s]), np.array([d * s1 / T]),
-                   np.array([d * s2 / T**2]), np.array([d * s3 / T**3]))
+        return self.q_from + d * s, d * s1 / T, d * s2 / T**2, d * s3 / T**3
 
 
 KINDS = {"constant": Constant, "sinusoid": Sinusoid, "smooth_step": SmoothStep}

@@ -16,7 +16,7 @@ import numpy as np
 
 from .controller import quadratic
 from .ph_plant import EMPlant, Jet
-from .proposition2 import ZShaped, law_u2
+from .proposition2 import ZShaped, law_u2, law_u2_scalar
 
 
 class Theorem3(ZShaped):
@@ -43,8 +43,17 @@ class Theorem3(ZShaped):
                             + self.JR_bar @ plant.grad_phi(x_s) - xe_dot_s)
         return self.z(eta_s) - np.linalg.solve(self.K_c, rhs)
 
-    def u(self, eta, jet):
+    def u_matrix(self, eta, jet):
         return law_u2(self, eta, self.K_c @ (self.z(eta) - self.L3(jet)))   # eq. (tracker2)
+
+    def u_scalar(self, q, p, x_e, jet):
+        """eq. (tracker2) with L_3 from eq. (L2), n_m = n_e = 1."""
+        plant, s, A = self.plant, self.scalars, self.A_s
+        q_s, p_s, x_s, x_s_dot = plant.feasible_scalar(*jet)
+        rhs = s.G_inv * ((s.D_d - s.Gamma) * s.m_inv * p_s + s.JR_bar * plant.dphi(x_s) - x_s_dot)
+        L3 = A * (s.Gamma * q_s + x_s) - rhs / self.K_c_s                 # eq. (L2), erratum 2
+        z = A * (s.Gamma * q + x_e)                                         # eq. (z)
+        return law_u2_scalar(plant, s, q, p, x_e, self.K_c_s * (z - L3))
 
     def H_d(self, eta, jet):
         q, p, x_e = self.plant.split(eta)                                   # eq. (HdClass4)

@@ -7,16 +7,21 @@ plain co-simulations of the FMUs.
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 import sys
 import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
 
 from . import report
 from .certify import design_from_scenario
+from .errors import ScenarioError, SimulationError
 from .master import simulate
 from .progress import ProgressBar
+from .results import Result
 from .ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,32 +59,124 @@ def run_from_result(name: str, label: str, scenario, result) -> report.Run:
                       result["controller.u"], eta_star)
 
 
+def _simulate_case(name: str, stop_time: float | None, fmu_dir: str | Path | None,
+                   progress=None) -> tuple[list[str], list[list[float]], float]:
+    """Run one paper scenario through the master: (columns, rows, wall time [s])."""
+    scenario = read_scenario(SCENARIOS / name, fmu_dir=fmu_dir)
+    tic = time.perf_counter()
+    result = simulate(scenario, stop_time=stop_time, progress=progress)
+    return result.columns, result.rows, time.perf_counter() - tic
+
+
+def _worker(name: str, stop_time, fmu_dir, queue) -> tuple[list[str], list[list[float]], float]:
+    """A worker process's task: the run, reporting its progress (name, fraction) to `queue`."""
+    last = [-1.0]
+
+    def progress(fraction: float) -> None:
+        if fraction - last[0] >= 0.02 or fraction >= 1.0:
+            last[0] = fraction
+            queue.put((name, fraction))
+    return _simulate_case(name, stop_time, fmu_dir, progress)
+
+
 def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | None = None,
-                        out=sys.stderr, fmu_dir: str | Path | None = None
+                        out=sys.stderr, fmu_dir: str | Path | None = None, jobs: int | None = None,
+                        failed: dict[str, SimulationError | ScenarioError] | None = None,
                         ) -> tuple[dict[str, report.Run], dict[str, float]]:
-    """Run each scenario (at its default step and horizon unless stop_time is given)."""
+    """Run each scenario (at its default step and horizon unless stop_time is given), `jobs` at a
+    time in worker processes (default: one per core; 1 runs them here, one after the other).
+    Progress goes to `out`: which scenarios run and how far each is. A scenario that fails does not
+    stop the others: its error goes into `failed` (by name) when a dict is given, else it is raised
+    after the other runs."""
+    jobs = max(1, min(len(names), jobs or os.cpu_count() or 1))
+    errors: dict = {} if failed is None else failed
+    results = _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) if jobs > 1 else \
+        _run_serial(names, stop_time, fmu_dir, out, errors)
+    if failed is None and errors:
+        raise next(iter(errors.values()))
     runs, walls = {}, {}
-    for i, (role, name) in enumerate(names.items(), 1):
-        scenario = read_scenario(SCENARIOS / name, fmu_dir=fmu_dir)
-        bar = ProgressBar(f"[{i}/{len(names)}] {name}", stream=out)
-        tic = time.perf_counter()
-        result = simulate(scenario, stop_time=stop_time, progress=bar)
-        bar.close()
-        walls[name] = time.perf_counter() - tic
-        print(f"[{i}/{len(names)}] {name}: {len(result)} communication points in {walls[name]:.1f} s",
-              file=out, flush=True)
-        runs[role] = run_from_result(name, LABELS.get(role, name), scenario, result)
+    for role, name in names.items():
+        if name not in results:
+            continue
+        columns, rows, walls[name] = results[name]
+        result = Result(columns)
+        result.rows = rows
+        runs[role] = run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name), result)
     return runs, walls
 
 
+def _done(i: int, n: int, name: str, outcome, out) -> str:
+    if isinstance(outcome, Exception):
+        return f"[{i}/{n}] {name}: failed: {' '.join(str(outcome).split())}"
+    return f"[{i}/{n}] {name}: {len(outcome[1])} communication points in {outcome[2]:.1f} s"
+
+
+def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
+    results = {}
+    for i, name in enumerate(names.values(), 1):
+        bar = ProgressBar(f"[{i}/{len(names)}] {name}", stream=out)
+        try:
+            outcome = results[name] = _simulate_case(name, stop_time, fmu_dir, bar)
+        except ScenarioError as exc:
+            outcome = errors[name] = exc
+        finally:
+            bar.close()
+        print(_done(i, len(names), name, outcome, out), file=out, flush=True)
+    return results
+
+
+def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) -> dict:
+    """Longest runs first (by communication steps), in `jobs` worker processes; a status line of
+    every running scenario's progress (redrawn on a terminal, every few seconds otherwise)."""
+    order = sorted(names.values(), key=lambda n: -_n_steps(n, stop_time))
+    context = multiprocessing.get_context("spawn")              # a fresh interpreter per worker (pythonfmu)
+    results, fraction = {}, {}
+    tty = getattr(out, "isatty", lambda: False)()
+    last_line, finished = 0.0, 0
+    with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        queue = manager.Queue()
+        futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
+        pending = set(futures)
+        print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            while not queue.empty():
+                name, f = queue.get()
+                fraction[name] = f
+            for future in done:
+                name = futures[future]
+                try:
+                    outcome = results[name] = future.result()
+                except ScenarioError as exc:
+                    outcome = errors[name] = exc
+                except Exception as exc:                           # a worker died (e.g. the host crashed)
+                    outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
+                fraction.pop(name, None)
+                finished += 1
+                print(("\r\033[K" if tty else "") + _done(finished, len(names), name, outcome, out),
+                      file=out, flush=True)
+            now = time.monotonic()
+            if fraction and (tty or now - last_line > 5.0):
+                line = "  ".join(f"{n} {100 * f:.0f}%" for n, f in fraction.items())
+                out.write(f"\r\033[Krunning: {line}" if tty else f"running: {line}\n")
+                out.flush()
+                last_line = now
+    return results
+
+
+def _n_steps(name: str, stop_time: float | None) -> float:
+    s = read_scenario(SCENARIOS / name)
+    return ((stop_time or s.stop_time) - s.start_time) / s.step_size
+
+
 def ensure_fmus(out=sys.stderr) -> None:
-    """Build the FMUs with the project's build.py when any FMU a paper scenario needs is missing."""
-    needed = {Path(c.source) for name in PAPER_CASES.values() for c in read_scenario(SCENARIOS / name).components}
-    if all(p.is_file() for p in needed):
-        return
+    """Build the FMUs with the project's build.py into build/fmus unless they are up to date with
+    the sources (build.py compares a fingerprint of every input: cheap when nothing changed)."""
     import runpy
-    print("building the FMUs (build.py) ...", file=out, flush=True)
-    runpy.run_path(str(ROOT / "build.py"), run_name="__main__")
+    build = runpy.run_path(str(ROOT / "build.py"))
+    if not build["up_to_date"]():
+        print("building the FMUs (build.py) ...", file=out, flush=True)
+        build["build"](verbose=True)
 
 
 def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
@@ -101,16 +198,28 @@ def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
 
 
 def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=sys.stderr,
-              fmu_dir: str | Path | None = None) -> dict:
+              fmu_dir: str | Path | None = None, jobs: int | None = None) -> dict:
+    """Run every paper scenario and write figures, metrics and claims into out_dir. A failed
+    scenario leaves out what needs it (its rows up to the failure go to NAME.partial.csv) and ends
+    in a ScenarioError naming it, after everything else is written."""
     out_path = Path(out_dir)
     out_path.mkdir(parents=True, exist_ok=True)
-    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir)
+    failed: dict[str, ScenarioError] = {}
+    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed)
     figures = write_figures(runs, out_path)
     notes = []
     for name in PAPER_CASES.values():
         notes += [n for n in read_scenario(SCENARIOS / name).notes if n not in notes and "Generated by" not in n]
     content = report.write_reports({r.name: r for r in runs.values()},
                                    {role: runs[role].name for role in runs}, out_path, notes)
-    (out_path / "runs.json").write_text(json.dumps({"wall_time_s": walls}, indent=1))
+    (out_path / "runs.json").write_text(json.dumps({"wall_time_s": walls,
+                                                    "failed": {n: str(e) for n, e in failed.items()}}, indent=1))
     print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json to {out_path}", file=out)
+    if failed:
+        for name, exc in failed.items():
+            partial = getattr(exc, "result", None)
+            if partial is not None and len(partial):
+                partial.write_csv(out_path / f"{name}.partial.csv")
+        raise ScenarioError(f"{len(failed)} of {len(PAPER_CASES)} scenarios failed: "
+                            + "; ".join(f"{n}: {' '.join(str(e).split())}" for n, e in failed.items()))
     return content

@@ -73,11 +73,12 @@ class ControllerSlave(EMSlave):
             if controller is None:                       # before initialization: from the current values
                 self.initialize()
                 controller, self.controller = self.controller, None
-            eta = np.array([v["q"], v["p"], v["x_e"]])
-            jet = None
-            if self.tracking:
-                jet = Jet(*(np.array([v[name]]) for name, _, _ in JET))
-            u = float(controller.u(eta, jet)[0])
+            if controller.scalars is not None:                # one-DOF plant: the law in scalars
+                jet = tuple(v[name] for name, _, _ in JET) if self.tracking else None
+                u = float(controller.u_scalar(v["q"], v["p"], v["x_e"], jet))
+            else:
+                jet = Jet(*(np.array([v[name]]) for name, _, _ in JET)) if self.tracking else None
+                u = float(controller.u(np.array([v["q"], v["p"], v["x_e"]]), jet)[0])
         except Exception as exc:                                      # noqa: BLE001 - reported, never raised
             return math.nan, f"{self.model_identifier}: u cannot be computed for the inputs {self.input_values()}: {exc}"
         if not math.isfinite(u):

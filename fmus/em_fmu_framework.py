@@ -157,6 +157,7 @@ class EMSlave(Fmi2Slave):
         self._getters: list[Callable[[], float] | None] = []
         self._setters: list[Callable[[float], None] | None] = []
         self._is_integer: list[bool] = []
+        self._real_inputs: dict[int, str] = {}                      # value reference -> name
         self.initialized = False
         self.time = 0.0
         self.declare()
@@ -199,6 +200,8 @@ class EMSlave(Fmi2Slave):
             raise ValueError("only parameters may be Integer")
         self.register_variable(kind(name, causality=causality, variability=variability,
                                     description=var.description, getter=getter, setter=setter))
+        if var.causality == "input":
+            self._real_inputs[len(self._getters)] = name
         self._getters.append(getter)
         self._setters.append(setter)
         self._is_integer.append(var.integer)
@@ -245,6 +248,14 @@ class EMSlave(Fmi2Slave):
         return out
 
     def _set(self, vrs, values, integer: bool) -> None:
+        if not integer:                                               # fast path: Real inputs only
+            inputs = self._real_inputs
+            if all(vr in inputs for vr in vrs):
+                store = self.values
+                for vr, value in zip(vrs, values):
+                    store[inputs[vr]] = float(value)
+                self.inputs_changed()
+                return
         for vr, value in zip(vrs, values):
             try:
                 setter = self._setters[vr]

@@ -41,8 +41,7 @@ class ReferenceSlave(EMSlave):
     def jet(self) -> tuple[float, float, float, float]:
         if self._jet_time != self.time or self.reference is None:
             reference = self.reference if self.reference is not None else self.make_reference()
-            j = reference.jet(self.time)
-            self._jet = (float(j.q[0]), float(j.qd[0]), float(j.qdd[0]), float(j.qddd[0]))
+            self._jet = tuple(float(v) for v in reference.values(self.time))
             self._jet_time = self.time if self.reference is not None else None
         return self._jet
 

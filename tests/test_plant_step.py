@@ -9,8 +9,8 @@ import pytest
 from components.maglev import Maglev
 from components.mems import MEMS
 from components.ph_plant import DomainError
-from components.plant_step import (LAYER_DECAY, PlantStepper, _ScalarModel, _solve_structured, nominal_scale,
-                                   simulate_zoh)
+from components.plant_step import (LAYER_DECAY, PlantStepper, _ArrayModel, _ScalarModel, _rodas4_structured,
+                                   _solve_structured, nominal_scale, simulate_zoh)
 
 PLANTS = {"MEMS": MEMS, "Maglev": Maglev}
 
@@ -49,16 +49,19 @@ def test_structured_solve_is_the_linear_solve():
         assert np.allclose(_solve_structured(lu, tuple(r)), np.linalg.solve(G, r), rtol=1e-10, atol=1e-12)
 
 
-def test_fourth_order_on_a_smooth_step():
-    """One RODAS4 step of the maglev (no electrical layer): the error ratio for h and h/2 is ~2^5."""
+@pytest.mark.parametrize("dense", [False, True], ids=["written-out stages", "coefficient loop"])
+def test_fourth_order_on_a_smooth_step(dense):
+    """One RODAS4 step of the maglev (no electrical layer): the error ratio for h and h/2 is ~2^5,
+    for both implementations of the step."""
     plant = Maglev()
     stepper = PlantStepper(plant)
     sq, sp, sx = stepper.scale
     eta = plant.equilibrium([0.0025]) + np.array([0.0, 0.002, 0.01])
     errors = []
     for h in (0.01, 0.005):
-        y, _ = stepper._rodas4(stepper.model, (eta[0] / sq, eta[1] / sp, eta[2] / sx), 0.5, h,
-                               1 / sq, 1 / sp, 1 / sx, sq, sp, sx)
+        rodas4 = stepper._rodas4_dense if dense else _rodas4_structured
+        y, _ = rodas4(_ArrayModel(plant) if dense else stepper.model, (eta[0] / sq, eta[1] / sp, eta[2] / sx), 0.5, h,
+                      1 / sq, 1 / sp, 1 / sx, sq, sp, sx)
         ref = simulate_zoh(plant, eta, h, [0.5], rtol=1e-13)[-1]
         errors.append(np.max(np.abs(np.array(y) - ref / stepper.scale)))
     assert 2 ** 4.5 < errors[0] / errors[1] < 2 ** 5.5

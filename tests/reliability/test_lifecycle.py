@@ -1,0 +1,141 @@
+"""Lifecycle: every FMU instantiated, initialized, stepped and freed 1000 times in one process, with the
+resident memory measured; fmi2Reset followed by a new run equals a fresh instance; the harness itself
+turns a crash or a hang into a failed test.
+
+Memory bound (docs/reliability.md): RSS growth over 1000 lifecycles below LEAK_BOUND = 16 MiB per FMU.
+Measured: about 5.5-6 KiB per lifecycle, linear, for every emcosim FMU. It is pythonfmu 0.7.0's: each
+fmi2Instantiate re-executes the FMU script, and the slave class it creates is never released (a class
+object with its dict, MRO and ABC data; a plain pythonfmu toy FMU without emcosim's framework leaks
+about 11 KiB per lifecycle). The bound is about 2.7 times the measurement: a leak of a slave instance's
+state (arrays, plants, the log) per lifecycle would exceed it; a host that instantiates 1e5 times loses
+about 0.6 GB, which the report states.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from .harness import ALL, OK, ROOT, WORKER, WorkerCrash, WorkerProcess, _worker
+
+pytestmark = pytest.mark.reliability
+
+N_LIFECYCLES = 1000
+LEAK_BOUND = 16 * 1024 * 1024            # bytes of RSS growth per 1000 lifecycles
+STEP = {"MEMS": 1e-6, "Maglev": 1e-3, "Reference": 1e-3}
+
+
+def _request(identifier: str, path) -> dict:
+    return {"fmu": str(path), "n": N_LIFECYCLES, "h": STEP.get(identifier, 1e-6), "every": 10, "warmup": 20,
+            "inputs": {"u": 25.0} if identifier == "MEMS" else {"u": 0.02} if identifier == "Maglev" else {}}
+
+
+@pytest.fixture(scope="module")
+def lifecycles(reliability_fmus, tally) -> dict[str, dict]:
+    """Run the 1000-lifecycle loop of every FMU, each in its own process, two processes at a time."""
+    pending = list(ALL)
+    running: dict[str, subprocess.Popen] = {}
+    results: dict[str, dict] = {}
+    while pending or running:
+        while pending and len(running) < 2:
+            identifier = pending.pop(0)
+            running[identifier] = subprocess.Popen(
+                [sys.executable, str(WORKER), "lifecycle", _worker.dumps(_request(identifier, reliability_fmus[identifier]))],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(ROOT))
+        identifier = next(iter(running))
+        proc = running.pop(identifier)
+        try:
+            out, err = proc.communicate(timeout=600)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+            results[identifier] = {"crash": f"hung for more than 600 s"}
+            continue
+        lines = [x for x in out.decode().splitlines() if x.startswith(_worker.RESULT_PREFIX)]
+        if not lines:
+            results[identifier] = {"crash": f"exit status {proc.returncode}: {err.decode()[-1500:]}"}
+        else:
+            results[identifier] = _worker.loads(lines[-1][len(_worker.RESULT_PREFIX):]).get("answer") or {"crash": lines[-1]}
+        results[identifier]["exit"] = (proc.returncode, err.decode()[-300:])
+    for identifier, r in results.items():
+        if r.get("ok"):
+            tally.add("lifecycle", identifier, "correct", N_LIFECYCLES)
+            tally.measurements["lifecycle"][identifier] = {
+                "lifecycles": N_LIFECYCLES, "rss_before_MiB": round(r["rss_before"] / 2**20, 2),
+                "rss_after_MiB": round(r["rss_after"] / 2**20, 2), "growth_KiB": round(r["growth"] / 1024, 1),
+                "growth_per_lifecycle_KiB": round(r["growth"] / 1024 / N_LIFECYCLES, 2),
+                "seconds": round(r["seconds"], 2), "bound_KiB": LEAK_BOUND // 1024}
+    return results
+
+
+@pytest.mark.parametrize("identifier", ALL)
+def test_1000_lifecycles_in_one_process_with_bounded_memory(lifecycles, identifier):
+    """All 1000 lifecycles complete with the same outputs and bounded memory growth (the process's
+    exit is checked separately below)."""
+    r = lifecycles[identifier]
+    assert "crash" not in r, f"{identifier}: the host process died: {r['crash']}"
+    assert r["ok"], r.get("reason")
+    assert r["n"] == N_LIFECYCLES
+    assert r["growth"] < LEAK_BOUND, (f"{identifier}: RSS grew by {r['growth'] / 2**20:.1f} MiB over "
+                                      f"{N_LIFECYCLES} lifecycles (bound {LEAK_BOUND / 2**20:.0f} MiB)")
+
+
+
+@pytest.mark.xfail(reason="known defect (docs/reliability.md, finding 1): in about 1 of 6 processes that ran "
+                          "1000 lifecycles of an emcosim FMU, glibc detects heap corruption when the process "
+                          "exits (abort in libgfortran's atexit handler); not yet isolated", strict=False)
+@pytest.mark.parametrize("identifier", ALL)
+def test_process_exits_cleanly_after_1000_lifecycles(lifecycles, identifier):
+    status, err = lifecycles[identifier]["exit"]
+    assert status == 0, f"{identifier}: exit status {status}: {err}"
+
+
+# ---- fmi2Reset ----------------------------------------------------------------------------------------
+def _reset_case(identifier: str) -> dict:
+    """Parameters other than the defaults, and inputs varying per step."""
+    if identifier == "MEMS":
+        return {"h": 1e-6, "values": {"c1": 40e-9, "q_0": 2e-5}, "steps": [{"u": 20.0 + k} for k in range(8)],
+                "first_values": {"a1": 0.5}, "first_steps": [{"u": 30.0}] * 5}
+    if identifier == "Maglev":
+        return {"h": 1e-3, "values": {"R_e": 2.0, "q_0": 0.002}, "steps": [{"u": 0.5 + 0.1 * k} for k in range(8)],
+                "first_values": {"m": 0.1}, "first_steps": [{"u": 3.0}] * 5}
+    if identifier == "Reference":
+        return {"h": 1e-3, "values": {"kind": 2, "q_from": 1e-5, "q_to": 2e-5, "t_start": 1e-3, "duration": 4e-3},
+                "steps": [{}] * 8, "first_values": {"kind": 1, "omega": 50.0}, "first_steps": [{}] * 5}
+    mems = identifier.startswith("MEMS")
+    base = {"q": 2.5e-5, "p": 1e-10, "x_e": 4e-11} if mems else {"q": 0.002, "p": 0.001, "x_e": 0.9}
+    jet = ({"q_star": 3e-5, "q_star_dot": 0.01, "q_star_ddot": -3.0, "q_star_dddot": 100.0} if mems else
+           {"q_star": 0.002, "q_star_dot": 0.01, "q_star_ddot": -0.3, "q_star_dddot": 2.0})
+    inputs = dict(base, **jet) if identifier.endswith(("Theorem2", "Theorem3")) else base
+    steps = [{k: v * (1 + 0.03 * i) for k, v in inputs.items()} for i in range(8)]
+    gains = {"MEMS_Proposition1": {"D_d": 2e-5}, "MEMS_Theorem2": {"D_d": -0.3},
+             "Maglev_Proposition2": {"q_d": 0.002}, "Maglev_Theorem3": {"D_d": -0.5}}[identifier]
+    return {"h": 1e-6, "values": gains, "steps": steps, "first_values": {}, "first_steps": steps[::-1]}
+
+
+@pytest.mark.parametrize("identifier", ALL)
+def test_reset_then_run_equals_fresh_instance(reliability_fmus, worker, tally, identifier):
+    """Run A on a fresh instance; on another instance: a different run (other parameters), fmi2Reset,
+    then run A again: the outputs are bit-identical."""
+    case = _reset_case(identifier)
+    r = worker.call({"cmd": "reset", "fmu": str(reliability_fmus[identifier]), **case})
+    assert r["fresh"][0] == OK and all(s == OK for s, _ in r["fresh"][1]), r
+    assert r["reset_status"] == OK, f"fmi2Reset returned {r['reset_status']}: {r['errors']}"
+    assert r["after_reset"][0] == OK, f"initialization after fmi2Reset failed: {r['errors']}"
+    assert r["after_reset"][1] == r["fresh"][1], f"{identifier}: run after fmi2Reset differs from a fresh instance"
+    tally.add("reset", identifier, "correct")
+
+
+# ---- the harness itself ---------------------------------------------------------------------------
+@pytest.mark.parametrize("how", ["segfault", "hang"])
+def test_harness_turns_crash_and_hang_into_failures(how, tally):
+    w = WorkerProcess()
+    try:
+        assert w.call({"cmd": "ping"})["pid"] > 0
+        with pytest.raises(WorkerCrash, match="died" if how == "segfault" else "hung"):
+            w.call({"cmd": "crash", "how": how}, timeout=5.0)
+        assert w.call({"cmd": "ping"})["pid"] > 0           # a new worker serves the next request
+        assert w.restarts == 1
+    finally:
+        w.close()

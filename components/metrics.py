@@ -36,6 +36,10 @@ def ise(t: np.ndarray, e: np.ndarray) -> float:
 
 
 def window_peaks(e: np.ndarray, n_windows: int) -> np.ndarray:
-    """max |e| over n_windows consecutive equal windows of the samples (an error envelope)."""
+    """max |e| over n_windows consecutive equal windows of the samples (an error envelope); with
+    fewer samples than windows, one window per sample."""
+    if len(e) == 0:
+        raise ValueError("window_peaks needs at least one sample")
+    n_windows = min(n_windows, len(e))
     k = len(e) // n_windows
     return np.abs(e[:k * n_windows]).reshape(n_windows, k).max(axis=1)

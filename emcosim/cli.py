@@ -83,6 +83,8 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--out", default="results", help="output folder (default: results)")
     rep.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
     rep.add_argument("--stop-time", type=float, help="shorten every scenario to this stop time [s] (a quick look)")
+    rep.add_argument("--jobs", "-j", type=int, help="scenarios run at the same time, each in its own process "
+                                                    "(default: one per core)")
     rep.set_defaults(func=cmd_reproduce)
 
     cert = sub.add_parser("certify", help="check the paper's conditions and certify a contraction rate for a scenario's design")
@@ -92,6 +94,25 @@ def _parser() -> argparse.ArgumentParser:
     cert.add_argument("--include-start", action="store_true", help="widen the neighbourhood to contain the initial state")
     cert.add_argument("--json", help="also write the certificate as JSON to this file")
     cert.set_defaults(func=cmd_certify)
+
+    sw = sub.add_parser("sweep", help="run a scenario over a parameter grid (and random plant samples) on Dask; "
+                                      "table and plots of the metrics")
+    sw.add_argument("scenario")
+    sw.add_argument("--grid", action="append", default=[], metavar="COMPONENT.PARAMETER=START:STOP:N",
+                    help="N equally spaced values from START to STOP (or V1,V2,...); repeat for a product grid")
+    sw.add_argument("--sample", action="append", default=[], metavar="COMPONENT.PARAMETER=LOW:HIGH",
+                    help="uncertain parameter drawn uniformly from [LOW, HIGH] (repeatable; needs --samples)")
+    sw.add_argument("--samples", type=int, default=0, help="random draws per grid point (same draws for every point)")
+    sw.add_argument("--seed", type=int, default=0, help="seed of the random draws (default 0)")
+    sw.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
+    sw.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use this running dask scheduler instead of a local cluster")
+    sw.add_argument("--out", help="output folder (default: sweep_SCENARIO_NAME)")
+    sw.add_argument("--stop-time", type=float, help="stop time [s] of every run (default: the scenario's)")
+    sw.add_argument("--step-size", type=float, help="communication step [s] (default: the scenario's)")
+    sw.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
+    sw.add_argument("--no-plots", action="store_true", help="write the table only")
+    sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+    sw.set_defaults(func=cmd_sweep)
     return p
 
 
@@ -187,7 +208,7 @@ def cmd_reproduce(args) -> int:
 
     if args.fmu_dir is None:
         ensure_fmus()
-    reproduce(args.out, stop_time=args.stop_time, fmu_dir=args.fmu_dir)
+    reproduce(args.out, stop_time=args.stop_time, fmu_dir=args.fmu_dir, jobs=args.jobs)
     return 0
 
 
@@ -204,6 +225,28 @@ def cmd_certify(args) -> int:
     if args.json:
         Path(args.json).write_text(cert.to_json())
         print(f"certificate written to {args.json}")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    from .sweep import parse_grid, parse_sample, sweep
+    from .sweep_output import plot, write_table
+
+    grid = [parse_grid(g) for g in args.grid]
+    samples = [parse_sample(s) for s in args.sample]
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError(f"--workers {args.workers}: must be >= 1")
+    scenario = _read(args.scenario, args.fmu_dir)
+    rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
+                       step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
+                       stream=None if args.no_progress else sys.stderr)
+    out = Path(args.out or f"sweep_{scenario.name}")
+    files = write_table(rows, out, info)
+    if not args.no_plots:
+        horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
+        files += plot(rows, dict(grid), info["units"], out, title=f"{scenario.name}, horizon {horizon:g} s")
+    print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {info['workers']} worker{'s' if info['workers'] != 1 else ''}, "
+          f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
     return 0
 
 

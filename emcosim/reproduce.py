@@ -80,7 +80,7 @@ def _worker(name: str, stop_time, fmu_dir, queue) -> tuple[list[str], list[list[
 
 
 def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | None = None,
-                        out=sys.stderr, fmu_dir: str | Path | None = None, jobs: int | None = None,
+                        out=None, fmu_dir: str | Path | None = None, jobs: int | None = None,
                         failed: dict[str, SimulationError | ScenarioError] | None = None,
                         ) -> tuple[dict[str, report.Run], dict[str, float]]:
     """Run each scenario (at its default step and horizon unless stop_time is given), `jobs` at a
@@ -88,6 +88,7 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
     Progress goes to `out`: which scenarios run and how far each is. A scenario that fails does not
     stop the others: its error goes into `failed` (by name) when a dict is given, else it is raised
     after the other runs."""
+    out = sys.stderr if out is None else out
     jobs = max(1, min(len(names), jobs or os.cpu_count() or 1))
     errors: dict = {} if failed is None else failed
     results = _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) if jobs > 1 else \
@@ -197,11 +198,12 @@ def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
     return files
 
 
-def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=sys.stderr,
+def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=None,
               fmu_dir: str | Path | None = None, jobs: int | None = None) -> dict:
     """Run every paper scenario and write figures, metrics and claims into out_dir. A failed
     scenario leaves out what needs it (its rows up to the failure go to NAME.partial.csv) and ends
     in a ScenarioError naming it, after everything else is written."""
+    out = sys.stderr if out is None else out
     out_path = Path(out_dir)
     out_path.mkdir(parents=True, exist_ok=True)
     failed: dict[str, ScenarioError] = {}

@@ -19,7 +19,6 @@ from emcosim.ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [c.name for c in paper_scenarios.cases()]
-MODELS = ["MEMS", "Maglev", "MEMS_Theorem2", "MEMS_Proposition1", "Maglev_Theorem3", "Maglev_Proposition2", "Reference"]
 ACCURACY = 1e-3                 # normalised maximum position error at the default step (docs/scenarios.md)
 
 
@@ -58,19 +57,6 @@ def test_maglev_initial_flux_is_the_feasible_one():
 
 
 # ---- runs: these need the FMUs ------------------------------------------------------------------
-
-@pytest.fixture(scope="session")
-def fmu_dir() -> Path:
-    """build/fmus (or $EMCOSIM_FMU_DIR); built with build.py if missing."""
-    d = Path(os.environ.get("EMCOSIM_FMU_DIR", ROOT / "build" / "fmus"))
-    missing = [m for m in MODELS if not (d / f"{m}.fmu").is_file()]
-    if missing and (ROOT / "build.py").is_file() and "EMCOSIM_FMU_DIR" not in os.environ:
-        subprocess.run([sys.executable, str(ROOT / "build.py")], cwd=ROOT, check=True, capture_output=True)
-        missing = [m for m in MODELS if not (d / f"{m}.fmu").is_file()]
-    if missing:
-        pytest.skip(f"FMUs not built: {missing} in {d}")
-    return d
-
 
 def short(name: str) -> float:
     return 5e-4 if name.startswith("mems") else 2.0

@@ -1,0 +1,314 @@
+"""`emcosim sweep`: run one scenario over a grid of parameter values (and random plant samples) on Dask.
+
+A design study in control terms: pick the gains to compare (e.g. coupled damping `controller.D_d`
+and electrical damping `controller.R_e_bar`), give each a range, and the sweep runs the closed loop
+at every combination and tabulates the performance metrics of `emcosim reproduce` (time into the
+2 % band, overshoot, oscillations, ISE, final error, peak input). Uncertain plant parameters can be
+drawn at random (`--sample plant.m=LOW:HIGH --samples N`): every grid point is then run with the same
+N plant draws, so designs are compared on the same plants.
+
+Engine: Dask. By default a local cluster of worker processes on this machine (one per core, one
+thread each: each process hosts one pythonfmu interpreter); with `--scheduler tcp://HOST:PORT` the
+runs go to a running `dask scheduler` and its workers instead. Each worker thread keeps the FMUs of
+the scenario loaded and resets them between runs (`emcosim.session`). Workers must see the same
+paths as the machine that starts the sweep (scenario, FMUs) and have emcosim installed.
+
+A run that fails (a gain the controller refuses, an FMU error) becomes a row with its error message;
+the sweep goes on.
+"""
+from __future__ import annotations
+
+import atexit
+import copy
+import itertools
+import math
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import asdict
+from pathlib import Path
+from typing import Iterator, TextIO
+
+import numpy as np
+
+from .errors import ScenarioError
+from .ssd import Parameter, Scenario, read_scenario
+
+METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
+"""The metrics of report.run_metrics put in the table (initial_error is kept too, not plotted)."""
+
+
+# ---- the specification of a sweep ----------------------------------------------------------------
+
+def parse_grid(spec: str) -> tuple[str, list[float]]:
+    """'component.parameter=START:STOP:N' (N equally spaced values, both ends included) or
+    'component.parameter=V1,V2,...' -> (name, values)."""
+    name, values_text = _split(spec, "--grid", "START:STOP:N or V1,V2,...")
+    if ":" in values_text:
+        parts = values_text.split(":")
+        if len(parts) != 3:
+            raise ScenarioError(f"--grid {spec}: expected COMPONENT.PARAMETER=START:STOP:N")
+        start, stop = (_number(p, f"--grid {spec}") for p in parts[:2])
+        try:
+            n = int(parts[2])
+        except ValueError:
+            raise ScenarioError(f"--grid {spec}: N = {parts[2]!r} is not a whole number") from None
+        if n < 1 or (n == 1 and start != stop):
+            raise ScenarioError(f"--grid {spec}: N must be >= 2 (or 1 with START = STOP)")
+        return name, [float(v) for v in np.linspace(start, stop, n)]
+    values = [_number(v, f"--grid {spec}") for v in values_text.split(",")]
+    return name, values
+
+
+def parse_sample(spec: str) -> tuple[str, float, float]:
+    """'component.parameter=LOW:HIGH' -> (name, low, high): a uniformly distributed parameter."""
+    name, values_text = _split(spec, "--sample", "LOW:HIGH")
+    parts = values_text.split(":")
+    if len(parts) != 2:
+        raise ScenarioError(f"--sample {spec}: expected COMPONENT.PARAMETER=LOW:HIGH")
+    low, high = (_number(p, f"--sample {spec}") for p in parts)
+    if not low <= high:
+        raise ScenarioError(f"--sample {spec}: LOW must not exceed HIGH")
+    return name, low, high
+
+
+def _split(spec: str, option: str, form: str) -> tuple[str, str]:
+    name, sep, values = spec.partition("=")
+    name = name.strip()
+    comp, dot, var = name.partition(".")
+    if not sep or not dot or not comp or not var or not values.strip():
+        raise ScenarioError(f"{option} {spec}: expected COMPONENT.PARAMETER={form}")
+    return name, values.strip()
+
+
+def _number(text: str, where: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise ScenarioError(f"{where}: {text.strip()!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ScenarioError(f"{where}: {text.strip()!r} is not finite")
+    return x
+
+
+def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, float]] = (),
+           n_samples: int = 0, seed: int = 0) -> list[dict[str, float]]:
+    """Parameter values of every run: the Cartesian product of the grid axes (first axis slowest),
+    each combined with the same n_samples uniform random draws of the sampled parameters."""
+    names = [n for n, _ in grid] + [n for n, _, _ in samples]
+    if len(set(names)) != len(names):
+        raise ScenarioError(f"a parameter appears twice in --grid/--sample: {', '.join(names)}")
+    if samples and n_samples < 1:
+        raise ScenarioError("--sample needs --samples N (N >= 1)")
+    if n_samples and not samples:
+        raise ScenarioError("--samples needs at least one --sample COMPONENT.PARAMETER=LOW:HIGH")
+    if not grid and not samples:
+        raise ScenarioError("nothing to sweep: give --grid and/or --sample")
+    rng = np.random.default_rng(seed)
+    draws = [{n: float(v) for n, v in zip([s[0] for s in samples], row)}
+             for row in zip(*[rng.uniform(lo, hi, n_samples) for _, lo, hi in samples])] if samples else [{}]
+    combos = itertools.product(*[values for _, values in grid])
+    return [{**dict(zip([n for n, _ in grid], combo)), **draw} for combo in combos for draw in draws]
+
+
+def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float]) -> dict[str, str]:
+    """Check every swept name with the master's own checks (component and variable exist, can be set,
+    is Real) and return its unit from the FMU's modelDescription ('' if none)."""
+    from . import master
+    from .session import check_start_values
+
+    check_start_values(scenario, {n: example[n] for n in names})
+    instances = master.load(scenario)
+    units = {}
+    for name in names:
+        comp, _, var_name = name.partition(".")
+        var = instances[comp].variables[var_name]
+        if var.type != "Real":
+            raise ScenarioError(f"--grid/--sample {name}: only Real parameters can be swept "
+                                f"({instances[comp].path.name} declares {var.type})")
+        units[name] = var.unit or (var.declaredType.unit if var.declaredType is not None else None) or ""
+    return units
+
+
+# ---- one run (executed on a worker) --------------------------------------------------------------
+
+_sessions: dict = {}            # (thread id, .ssd, fmu_dir) -> (scenario, Session), in this process
+_lock = threading.Lock()
+
+
+def _session(ssd: str, fmu_dir: str | None):
+    """This thread's (scenario, Session): the FMUs loaded once, reused for every later run."""
+    from .session import Session
+
+    key = (threading.get_ident(), ssd, fmu_dir)
+    with _lock:
+        found = _sessions.get(key)
+    if found is None:
+        scenario = read_scenario(ssd, fmu_dir=fmu_dir)
+        found = (scenario, Session(scenario))
+        with _lock:
+            if not _sessions:
+                atexit.register(close_sessions)
+            _sessions[key] = found
+    return found
+
+
+def close_sessions() -> int:
+    """Free every FMU instance this process holds and delete the unpacked FMUs; returns how many
+    sessions were closed. The sweep calls it on every worker at the end (`client.run`, i.e. on the
+    workers' main threads); it also runs at exit."""
+    with _lock:
+        sessions = [s for _, s in _sessions.values()]
+        _sessions.clear()
+    for session in sessions:
+        session.close()
+    return len(sessions)
+
+
+def with_values(scenario: Scenario, values: dict[str, float]) -> Scenario:
+    """A copy of the scenario whose parameter sets hold `values` (used to compute the controller's
+    target eta*(t) for the run's own gains)."""
+    s = copy.deepcopy(scenario)
+    for name, value in values.items():
+        comp_name, _, var = name.partition(".")
+        s.component(comp_name).parameters[var] = Parameter(var, "Real", float(value))
+    return s
+
+
+def metrics_of(scenario: Scenario, values: dict[str, float], result) -> dict[str, float]:
+    """The reproduce report's metrics of one run's result (master Result, or the columns of a CSV
+    wrapped the same way) for the scenario run with `values`."""
+    from . import report
+    from .reproduce import run_from_result
+
+    run = run_from_result(scenario.name, scenario.name, with_values(scenario, values), result)
+    return asdict(report.run_metrics(run))
+
+
+def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], stop_time: float | None = None,
+              step_size: float | None = None) -> dict:
+    """Run the scenario once with `values` and return its table row: the values, the metrics and
+    'status' ('ok' or the one-line error). Never raises for a failing run."""
+    row: dict = dict(values)
+    try:
+        scenario, session = _session(ssd, fmu_dir)
+        result = session.run({k: float(v) for k, v in values.items()}, stop_time=stop_time, step_size=step_size)
+        row.update(metrics_of(scenario, values, result))
+        row["status"] = "ok"
+    except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash
+        text = " ".join(str(exc).split())
+        row["status"] = text if isinstance(exc, ScenarioError) else f"{type(exc).__name__}: {text}"
+    return row
+
+
+# ---- the engine ----------------------------------------------------------------------------------
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[object]:
+    """A dask.distributed Client: to the scheduler at `scheduler`, or to a new local cluster of
+    `workers` processes (default: one per core), one thread each."""
+    import logging
+    import os
+
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError:
+        raise ScenarioError("emcosim sweep needs Dask: pip install 'dask[distributed]'") from None
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise ScenarioError(f"--scheduler {scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
+        with client:
+            yield client
+        return
+    n = workers or os.cpu_count() or 1
+    if n < 1:
+        raise ScenarioError(f"--workers {workers}: must be >= 1")
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
+
+
+def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
+            stop_time: float | None = None, step_size: float | None = None,
+            stream: TextIO | None = sys.stderr) -> list[dict]:
+    """Submit every run to the cluster and return the rows in the order of `runs`; progress
+    ('runs done / total') goes to `stream`."""
+    from dask.distributed import as_completed
+
+    futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, pure=False)
+               for values in runs]
+    index = {f.key: i for i, f in enumerate(futures)}
+    rows: list[dict | None] = [None] * len(runs)
+    tic = time.monotonic()
+    failed = 0
+    for done, future in enumerate(as_completed(futures), 1):
+        i = index[future.key]
+        try:
+            rows[i] = future.result()
+        except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
+            rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+        failed += rows[i]["status"] != "ok"
+        _progress(stream, done, len(runs), failed, time.monotonic() - tic)
+    return rows
+
+
+def _progress(stream: TextIO | None, done: int, total: int, failed: int, elapsed: float) -> None:
+    if stream is None:
+        return
+    tty = getattr(stream, "isatty", lambda: False)()
+    if not tty and done != total and done % max(1, total // 10):
+        return
+    text = f"sweep: {done}/{total} runs done" + (f" ({failed} failed)" if failed else "") + f", {elapsed:.1f} s"
+    stream.write(("\r" + text) if tty else text + "\n")
+    if tty and done == total:
+        stream.write("\n")
+    stream.flush()
+
+
+def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
+          samples: list[tuple[str, float, float]] = (), n_samples: int = 0, seed: int = 0,
+          stop_time: float | None = None, step_size: float | None = None, workers: int | None = None,
+          scheduler: str | None = None, stream: TextIO | None = sys.stderr) -> tuple[list[dict], dict]:
+    """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
+    the wall time and the throughput."""
+    runs = points(grid, samples, n_samples, seed)
+    names = list(runs[0])
+    units = check_parameters(scenario, names, runs[0])
+    fmu_dir = _common_fmu_dir(scenario)
+    tic = time.perf_counter()
+    with dask_client(workers, scheduler) as client:
+        started = time.perf_counter()
+        try:
+            rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream)
+            end = time.perf_counter()
+            n_workers = len(client.nthreads())
+        finally:
+            _close_on_workers(client)
+    closed = time.perf_counter()
+    info = {"scenario": scenario.name, "runs": len(rows), "failed": sum(r["status"] != "ok" for r in rows),
+            "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",
+            "wall_time_s": closed - tic, "run_time_s": end - started,
+            "runs_per_s": len(rows) / (end - started) if end > started else float("nan"),
+            "stop_time": stop_time, "step_size": step_size, "seed": seed,
+            "grid": {n: v for n, v in grid}, "samples": {n: [lo, hi] for n, lo, hi in samples},
+            "n_samples": n_samples, "units": units}
+    return rows, info
+
+
+def _close_on_workers(client) -> None:
+    """Free the FMU instances on every worker (a long-lived cluster should not keep them)."""
+    try:
+        client.run(close_sessions)
+    except Exception:                                 # noqa: BLE001 - cleanup only; workers may be gone
+        pass
+
+
+def _common_fmu_dir(scenario: Scenario) -> str | None:
+    """The folder every FMU of the scenario comes from, if they share one (passed to the workers as
+    --fmu-dir so that they read the FMUs the client resolved); else None (the .ssd's paths)."""
+    dirs = {str(Path(c.source).resolve().parent) for c in scenario.components}
+    return dirs.pop() if len(dirs) == 1 else None

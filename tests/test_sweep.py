@@ -1,0 +1,162 @@
+"""`emcosim sweep` (emcosim.sweep): a sweep gives the same numbers as the same runs made one by one
+with `emcosim run`; a failing grid point is a row with its error; a real dask scheduler + workers on
+loopback gives the same table as the local cluster; malformed specifications are one-line errors.
+
+Horizons are short (MEMS regulation, 1 ms = 100 communication steps) so the file runs in well under a
+minute; most of the time is dask start-up."""
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from emcosim import cli
+from emcosim.results import Result, read_csv
+from emcosim.ssd import read_scenario
+from emcosim.sweep import METRICS, metrics_of, parse_grid, parse_sample, points
+from emcosim.sweep_output import read_table
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = "mems_regulation_Dd0"
+STOP = "1e-3"
+GRID = "controller.D_d=-1:0:3"
+MODELS = ["MEMS", "MEMS_Theorem2", "Reference"]
+
+
+@pytest.fixture(scope="module")
+def fmu_dir() -> Path:
+    """build/fmus (or $EMCOSIM_FMU_DIR); built with build.py if missing (as in test_scenarios)."""
+    d = Path(os.environ.get("EMCOSIM_FMU_DIR", ROOT / "build" / "fmus"))
+    if any(not (d / f"{m}.fmu").is_file() for m in MODELS) and "EMCOSIM_FMU_DIR" not in os.environ:
+        subprocess.run([sys.executable, str(ROOT / "build.py")], cwd=ROOT, check=True, capture_output=True)
+    if any(not (d / f"{m}.fmu").is_file() for m in MODELS):
+        pytest.skip(f"FMUs not built in {d}")
+    return d
+
+
+def sweep_cli(out: Path, fmu_dir: Path, *extra: str) -> list[dict]:
+    code = cli.main(["sweep", SCENARIO, "--stop-time", STOP, "--fmu-dir", str(fmu_dir), "--out", str(out),
+                     "--no-progress", *extra])
+    assert code == 0
+    return read_table(out / "sweep.csv")
+
+
+@pytest.fixture(scope="module")
+def local_table(tmp_path_factory, fmu_dir) -> list[dict]:
+    return sweep_cli(tmp_path_factory.mktemp("local"), fmu_dir, "--grid", GRID, "--workers", "2")
+
+
+def result_of_csv(path: Path) -> Result:
+    cols = read_csv(path)
+    names = [c for c in cols if c != "time"]
+    r = Result(names)
+    for i, t in enumerate(cols["time"]):
+        r.append(float(t), [float(cols[n][i]) for n in names])
+    return r
+
+
+def test_sweep_equals_runs_one_by_one(local_table, fmu_dir, tmp_path):
+    assert [r["controller.D_d"] for r in local_table] == [-1.0, -0.5, 0.0]
+    assert all(r["status"] == "ok" for r in local_table)
+    scenario = read_scenario(ROOT / "scenarios" / SCENARIO, fmu_dir=fmu_dir)
+    for row in local_table:
+        value = row["controller.D_d"]
+        csv = tmp_path / f"run_{value}.csv"
+        assert cli.main(["run", SCENARIO, "--stop-time", STOP, "--fmu-dir", str(fmu_dir), "--no-progress",
+                         "--set", f"controller.D_d={value!r}", "--output", str(csv)]) == 0
+        expected = metrics_of(scenario, {"controller.D_d": value}, result_of_csv(csv))
+        for m in METRICS + ["initial_error"]:
+            assert row[m] == expected[m], (value, m)          # bit for bit: same master, same FMUs
+    # the study is meaningful: coupled damping changes the response
+    assert len({r["ise"] for r in local_table}) == 3
+
+
+def test_invalid_point_is_a_row_with_its_error(fmu_dir, tmp_path):
+    rows = sweep_cli(tmp_path, fmu_dir, "--grid", "controller.rbar_e=-50,50,100", "--workers", "1")
+    assert [r["controller.rbar_e"] for r in rows] == [-50.0, 50.0, 100.0]
+    assert "rbar_e" in rows[0]["status"] and "violates" in rows[0]["status"]
+    assert rows[0]["ise"] is None                               # no metrics for a failed run
+    assert [r["status"] for r in rows[1:]] == ["ok", "ok"]
+    assert all(np.isfinite(r["ise"]) for r in rows[1:])
+    assert (tmp_path / "sweep.md").is_file() and (tmp_path / "sweep_metrics.png").is_file()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for(port: int, timeout: float = 30.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.2)
+    raise TimeoutError(f"dask scheduler did not open port {port}")
+
+
+def test_loopback_cluster_gives_the_same_table(local_table, fmu_dir, tmp_path):
+    dask = Path(sys.executable).parent / "dask"
+    if not dask.is_file():
+        pytest.skip("the dask command is not installed")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([str(dask), "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path)]
+    try:
+        _wait_for(port)
+        for _ in range(2):
+            procs.append(subprocess.Popen([str(dask), "worker", address, "--nthreads", "1", "--no-dashboard"],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path))
+        from dask.distributed import Client
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=60)
+        remote = sweep_cli(tmp_path, fmu_dir, "--grid", GRID, "--scheduler", address)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    assert remote == local_table
+
+
+# ---- specifications (no cluster) -----------------------------------------------------------------
+
+def test_grid_and_sample_parsing():
+    assert parse_grid("controller.D_d=-1:0:3") == ("controller.D_d", [-1.0, -0.5, 0.0])
+    assert parse_grid("controller.R_e_bar=0.82,2.82") == ("controller.R_e_bar", [0.82, 2.82])
+    assert parse_sample("plant.m=0.08:0.09") == ("plant.m", 0.08, 0.09)
+    runs = points([("a.x", [1.0, 2.0]), ("b.y", [3.0, 4.0, 5.0])], [("plant.m", 1.0, 2.0)], 2, seed=1)
+    assert len(runs) == 12 and runs[0]["a.x"] == 1.0 and runs[-1]["b.y"] == 5.0
+    assert runs[0]["plant.m"] == runs[2]["plant.m"] != runs[1]["plant.m"]      # same draws at every point
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--grid", "controller.D_d=0:1"], "START:STOP:N"),
+    (["--grid", "controller.D_d=0:1:x"], "not a whole number"),
+    (["--grid", "D_d=0:1:3"], "COMPONENT.PARAMETER"),
+    (["--grid", "controller.D_d=0:nan:3"], "not finite"),
+    (["--grid", "ctrl.D_d=0:1:3"], "no component 'ctrl'"),
+    (["--grid", "controller.nope=0:1:3"], "unknown variable 'nope'"),
+    (["--grid", "controller.D_d=0:1:2", "--grid", "controller.D_d=0:1:2"], "appears twice"),
+    (["--sample", "plant.m=2:1", "--samples", "3"], "LOW must not exceed HIGH"),
+    (["--sample", "plant.m=1:2"], "needs --samples"),
+    ([], "nothing to sweep"),
+])
+def test_malformed_specifications_are_one_line_errors(args, message, fmu_dir, tmp_path, capsys):
+    code = cli.main(["sweep", SCENARIO, "--fmu-dir", str(fmu_dir), "--out", str(tmp_path), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 1
+    assert len(err.splitlines()) == 1 and err.startswith("emcosim: error:") and message in err, err

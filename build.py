@@ -1,4 +1,5 @@
-"""Build every emcosim FMU into build/fmus/ (`python build.py [--force] [--dest DIR]`).
+"""Build every emcosim FMU into build/fmus/ and pack every scenario with its FMUs into a
+self-contained SSP archive in build/ssp/ (`python build.py [--force] [--dest DIR] [--no-ssp]`).
 
 Each FMU is a pythonfmu 0.7.0 build of one thin script in fmus/ (its module name is unique: all
 FMUs loaded in a process share one interpreter), bundling the adapter modules it imports and the
@@ -23,6 +24,8 @@ ROOT = Path(__file__).resolve().parent
 FMU_SOURCES = ROOT / "fmus"
 COMPONENTS = ROOT / "components"
 DEFAULT_DEST = ROOT / "build" / "fmus"
+SSP_DEST = ROOT / "build" / "ssp"
+SCENARIOS = ROOT / "scenarios"
 DOCS = ROOT / "docs" / "fmus.md"
 STAMP = ".build-stamp.json"
 
@@ -123,6 +126,28 @@ def build(dest: Path | str = DEFAULT_DEST, force: bool = False, verbose: bool = 
     return paths
 
 
+def pack_scenarios(fmu_dir: Path | str = DEFAULT_DEST, dest: Path | str = SSP_DEST, verbose: bool = True) -> list[Path]:
+    """Pack every scenario of scenarios/ with the FMUs of `fmu_dir` into a self-contained SSP archive
+    dest/<name>.ssp (SystemStructure.ssd, its .ssv files, the FMUs under resources/), repacked like
+    the FMUs so that the same inputs give the same bytes."""
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    from emcosim.ssp import pack_ssp
+
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    out = []
+    with tempfile.TemporaryDirectory(prefix="emcosim_ssp_") as work:
+        for folder in sorted(p for p in SCENARIOS.iterdir() if (p / "SystemStructure.ssd").is_file()):
+            raw = pack_ssp(folder, Path(work) / f"{folder.name}.ssp", fmu_dir=fmu_dir)
+            target = dest / raw.name
+            _repack(raw, target)
+            out.append(target)
+            if verbose:
+                print(f"packed      {target}  ({target.stat().st_size / 1024:.0f} kB)")
+    return out
+
+
 # ---- documentation ------------------------------------------------------------------------------
 DOCS_BEGIN = "<!-- BEGIN GENERATED VARIABLES (python build.py --docs) -->"
 DOCS_END = "<!-- END GENERATED VARIABLES -->"
@@ -162,8 +187,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dest", default=str(DEFAULT_DEST), help="output folder (default build/fmus)")
     parser.add_argument("--force", action="store_true", help="rebuild even if the inputs are unchanged")
     parser.add_argument("--docs", action="store_true", help="regenerate the variable tables of docs/fmus.md")
+    parser.add_argument("--no-ssp", action="store_true", help="do not pack the scenarios into build/ssp/*.ssp")
     args = parser.parse_args(argv)
     paths = build(args.dest, force=args.force)
+    if not args.no_ssp:
+        pack_scenarios(args.dest)
     if args.docs:
         update_docs(paths)
         print(f"updated     {DOCS}")

@@ -388,3 +388,47 @@ def decay_bound_holds(Omega: np.ndarray, rate: float, t: np.ndarray, error: np.n
     """The certificate's promise on a simulated error e(t) = eta - eta*: |e(t)|_Omega <= exp(-rate t) |e(0)|_Omega."""
     norms = np.sqrt(np.einsum("ti,ij,tj->t", error, Omega, error))
     return bool(np.all(norms <= np.exp(-rate * (t - t[0])) * norms[0] * (1 + slack) + 1e-300))
+
+
+# ---- the design alone: what a controller FMU checks at initialization ---------------------------
+
+def design_checks(controller: Controller, jet=None) -> list[Check]:
+    """The conditions of the controller's proposition or theorem that its parameters decide alone,
+    at the target (eta_d, or eta*(t) of `jet`): cheap enough for an FMU's initialization.
+
+    Proposition 1: Assumption 1, K_e >= 0, eq. (phi12) (hess H_d(eta_d) > 0); the strict pH
+    condition is enforced when the controller is built. Proposition 2: hess phi(x_e_d) > 0
+    (Assumption 2), K_e >= 0, eq. (Phic22) (hess H_d(eta_d) > 0). Theorem 2: R_m > 0 (Assumption 3),
+    K_e >= 0, Theorem 1 (i). Theorem 3: K_e > 0, hess phi(x_e*) > 0 (Assumption 4), Theorem 1 (i).
+    Theorem 1 (ii), (iii) and contraction rates need a neighbourhood of the reference over a horizon:
+    `certify` (emcosim certify) evaluates them.
+    """
+    plant, name = controller.plant, controller.name
+    k_e = _min_eig(controller.K_e)
+    checks = []
+    if name == "Proposition 1":
+        checks.append(assumption_1(controller))
+    if name in ("Proposition 1", "Proposition 2"):
+        h = _min_eig(controller.hess_H_d(controller.target()))
+        label = "eq. (phi12)" if name == "Proposition 1" else "eq. (Phic22)"
+        checks.append(Check(f"{label}: hess H_d(eta_d) > 0", _verdict(h > 0), {"min eig hess H_d(eta_d)": h}))
+    if name == "Theorem 2":
+        r = _min_eig(plant.R_m)
+        checks.append(Check("Assumption 3: R_m > 0", _verdict(r > 0), {"min eig R_m": r}))
+    if name in ("Proposition 2", "Theorem 3"):
+        which = "Assumption 2: hess phi(x_e_d) > 0" if name == "Proposition 2" else "Assumption 4: hess phi(x_e*) > 0"
+        if controller.tracking and jet is None:
+            checks.append(Check(which, NOT_APPLICABLE, {}, "no reference given"))
+        else:
+            x_e = plant.split(controller.target(jet) if controller.tracking else controller.target())[2]
+            h = _min_eig(plant.hess_phi(x_e))
+            checks.append(Check(which, _verdict(h > 0), {"min eig hess phi": h}))
+    strict_k = name == "Theorem 3"
+    checks.append(Check(f"K_e = R_e_bar - R_e {'>' if strict_k else '>='} 0 ({name})",
+                        _verdict(k_e > 0 if strict_k else k_e >= 0), {"min eig K_e": k_e},
+                        "the closed loop itself only needs R_e_bar > 0 (erratum 4)" if strict_k else ""))
+    if name in ("Theorem 2", "Theorem 3"):
+        eig = np.linalg.eigvals(controller.F_d())
+        checks.append(Check("Theorem 1 (i): F_d Hurwitz", _verdict(np.max(eig.real) < 0),
+                            {"max real part of eig F_d": float(np.max(eig.real))}))
+    return checks

@@ -145,6 +145,8 @@ def cmd_run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
+    for warning in getattr(result, "warnings", []):
+        print(f"emcosim: warning: {warning}", file=sys.stderr)
     if result is not None and len(result):
         result.write_csv(output)
         if args.plot:

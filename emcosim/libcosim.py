@@ -6,6 +6,11 @@ FMUs step from t_n with the inputs transferred at t_n, and outputs are transferr
 step. A direct-feedthrough controller's output at t_n therefore reaches the plant one step late
 (the plant integrates [t_n, t_n+1] with u(t_{n-1})), where our master resolves it at t_n.
 The libcosim trajectory then differs from ours by O(h), which the cross-check test bounds.
+
+libcosim calls the FMUs from its own worker threads. pythonfmu 0.7.0 FMUs driven from a thread other
+than the process's main thread leave the heap corrupted, and glibc aborts the process when it
+exits. `simulate_libcosim` therefore runs libcosim in a child process (a fresh interpreter) and
+returns its results; whatever happens to the child at its exit cannot take the caller down.
 """
 from __future__ import annotations
 
@@ -25,7 +30,29 @@ def simulate_libcosim(scenario: Scenario, stop_time: float | None = None, step_s
                       start_values: dict[str, float] | None = None, record: list[str] | None = None) -> Result:
     """Run `scenario` with a fixed step in libcosim, which reads the .ssd/.ssv files itself (packed
     into a temporary .ssp with the FMUs the scenario resolved); record `record` (default: every
-    output connector) at every communication point."""
+    output connector) at every communication point. libcosim runs in a child process (see above)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    context = multiprocessing.get_context("spawn")
+    try:
+        with ProcessPoolExecutor(1, mp_context=context) as pool:
+            columns, rows = pool.submit(_simulate_here, scenario, stop_time, step_size, start_values, record).result()
+    except BrokenProcessPool as exc:
+        raise ScenarioError(f"libcosim: the process running {scenario.name} died ({exc})") from None
+    result = Result(columns)
+    result.rows = rows
+    return result
+
+
+def _simulate_here(scenario, stop_time, step_size, start_values, record) -> tuple[list[str], list[list[float]]]:
+    """simulate_libcosim in this process: (columns, rows)."""
+    result = _simulate(scenario, stop_time, step_size, start_values, record)
+    return result.columns, result.rows
+
+
+def _simulate(scenario: Scenario, stop_time, step_size, start_values, record) -> Result:
     try:
         from libcosimpy.CosimExecution import CosimExecution
         from libcosimpy.CosimLogging import CosimLogLevel, log_output_level

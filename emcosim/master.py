@@ -138,6 +138,8 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         tic = time.perf_counter()
         stepper = _Stepper(scenario, instances, plan, slots)
         _initialize(scenario, instances, parameters, t0, t_stop, stepper)
+        result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}" for name, inst in instances.items()
+                           for m in inst.messages if m.startswith("[warning]")]
         if tolerance is None:
             _run_fixed(stepper, result, t0, t_stop, h, progress)
         else:

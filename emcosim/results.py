@@ -13,6 +13,7 @@ class Result:
     def __init__(self, columns: list[str]):
         self.columns = list(columns)
         self.rows: list[list[float]] = []
+        self.warnings: list[str] = []          # the FMUs' warnings at initialization ("component: message")
 
     def append(self, t: float, values: list) -> None:
         self.rows.append([t, *values])

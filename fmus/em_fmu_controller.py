@@ -15,10 +15,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from components import catalog
+from components import catalog, certificates
 from components.controller import Controller
 from components.ph_plant import Jet
 from em_fmu_framework import REFERENCE_JET as JET, EMSlave
+from pythonfmu.enums import Fmi2Status
 
 STATE_NAMES = ("q", "p", "x_e")
 
@@ -36,6 +37,9 @@ class ControllerSlave(EMSlave):
             self.parameter(p.name, p.default, p.unit, f"controller's model of the plant: {p.description}")
         for p in self.gains.values():
             self.parameter(p.name, p.default, p.unit, p.description)
+        self.parameter("strict", 0, None, "1: refuse to initialize when the parameters violate a condition of the "
+                       "controller's proposition or theorem (components.certificates.design_checks); "
+                       "0: log a warning and run", integer=True)
         inputs = [(n,) + module.STATES[n] for n in STATE_NAMES] + (list(JET) if self.tracking else [])
         for (name, unit, description), start in zip(inputs, self.input_start):
             self.input(name, start, unit, description)
@@ -46,10 +50,37 @@ class ControllerSlave(EMSlave):
         self._u: float | None = None
         self._u_error = ""
 
-    def initialize(self) -> None:
+    def make_controller(self) -> Controller:
+        """The components controller of the current parameter values (a ValueError names the parameter)."""
         names = list(self.plant_module.PARAMETERS) + list(self.gains)
-        self.controller = catalog.controller(self.model_identifier, {n: self.values[n] for n in names})
-        self._u = None                                               # (a ValueError names the parameter)
+        return catalog.controller(self.model_identifier, {n: self.values[n] for n in names})
+
+    def initialize(self) -> None:
+        controller = self.make_controller()
+        strict = self.values["strict"]                               # (a ValueError names the parameter)
+        if strict not in (0, 1):
+            raise ValueError(f"parameter strict = {strict} violates strict in {{0, 1}}")
+        failed = [c for c in certificates.design_checks(controller, self.input_jet(controller))
+                  if c.verdict == certificates.FAILS]
+        if failed:
+            message = (f"{self.model_identifier}: the parameters violate {controller.name}'s conditions: "
+                       + "; ".join(f"{c.name} ({', '.join(f'{k} = {v:.4g}' for k, v in c.numbers.items())})"
+                                   + (f" [{c.note}]" if c.note else "") for c in failed))
+            if strict:
+                raise ValueError(message + " (strict = 1)")
+            self.log(message + "; running anyway (strict = 0)", Fmi2Status.warning)
+        self.controller, self._u = controller, None
+
+    def input_jet(self, controller: Controller) -> Jet | None:
+        """The reference jet at the inputs (tracking controllers), or None if it is not feasible."""
+        if not self.tracking:
+            return None
+        jet = Jet(*(np.array([self.values[name]]) for name, _, _ in JET))
+        try:
+            controller.target(jet)
+        except ValueError:
+            return None
+        return jet
 
     # ---- the output -----------------------------------------------------------------------------
     def inputs_changed(self) -> None:
@@ -71,8 +102,7 @@ class ControllerSlave(EMSlave):
         try:
             controller = self.controller
             if controller is None:                       # before initialization: from the current values
-                self.initialize()
-                controller, self.controller = self.controller, None
+                controller = self.make_controller()
             if controller.scalars is not None:                # one-DOF plant: the law in scalars
                 jet = tuple(v[name] for name, _, _ in JET) if self.tracking else None
                 u = float(controller.u_scalar(v["q"], v["p"], v["x_e"], jet))

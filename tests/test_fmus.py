@@ -171,7 +171,8 @@ def test_controller_interface(fmus, identifier):
         assert v[name].unit == module.STATES[name][0]
     parameters = {n: (float(x.start), x.unit) for n, x in v.items() if x.causality == "parameter"}
     expected = {p.name: (p.default, p.unit) for p in module.PARAMETERS.values()} | GAINS[identifier]
-    assert parameters == expected
+    assert parameters == expected | {"strict": (0.0, None)}
+    assert v["strict"].type == "Integer" and "proposition or theorem" in v["strict"].description
     for p in catalog.GAINS[identifier].values():
         assert v[p.name].description == p.description
 
@@ -471,6 +472,28 @@ def test_non_finite_inputs_are_reported(fmus):
     ctrl.set(q_star_ddot=0.0)
     assert ctrl.step(0.0, 1e-2) == OK and math.isfinite(ctrl.get("u")[0])
     ctrl.free()
+
+
+@pytest.mark.parametrize("identifier, values, words", [
+    ("Maglev_Theorem3", {"R_e_bar": 0.82}, ["Theorem 3", "K_e = R_e_bar - R_e > 0", "min eig K_e = -1.43"]),
+    ("Maglev_Theorem3", {"R_e_bar": 2.82, "D_d": 2.0}, ["Theorem 1 (i): F_d Hurwitz"]),
+])
+def test_controller_warns_about_violated_conditions_and_strict_refuses(fmus, identifier, values, words):
+    """A design that violates a condition of the controller's theorem (components.certificates.
+    design_checks) initializes with a logged warning that names it; with strict = 1 it does not
+    initialize. A design that meets the conditions initializes without a warning either way."""
+    warned = Slave(fmus[identifier])
+    assert warned.init(**values) == OK
+    warnings = "\n".join(m for st, m in warned.messages if st == 1)
+    assert all(w in warnings for w in words), warnings
+    warned.free()
+    refused = Slave(fmus[identifier])
+    assert refused.init(**values, strict=1) == FATAL
+    assert all(w in refused.errors() for w in words) and "strict = 1" in refused.errors()
+    refused.free()
+    clean = Slave(fmus[identifier])
+    assert clean.init(R_e_bar=2.82, strict=1) == OK and not [m for st, m in clean.messages if st >= 1]
+    clean.free()
 
 
 def test_infeasible_reference_is_reported(fmus):

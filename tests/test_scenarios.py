@@ -183,3 +183,21 @@ def test_scenarios_run_one_after_another_in_one_process(fmu_dir):
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert run.returncode == 0, run.stderr[-2000:]
     assert len(run.stdout.split("\n")) == 4
+
+
+def test_build_packs_every_scenario_into_a_runnable_ssp(fmu_dir, tmp_path):
+    """build.py packs each scenario with its FMUs into one .ssp archive; the same inputs give the
+    same bytes, and an archive runs on its own (its FMUs inside) with the results of the folder."""
+    import zipfile
+
+    import build
+    archives = build.pack_scenarios(fmu_dir, tmp_path / "a", verbose=False)
+    assert sorted(a.stem for a in archives) == sorted(SCENARIOS)
+    again = build.pack_scenarios(fmu_dir, tmp_path / "b", verbose=False)
+    assert [a.read_bytes() for a in archives] == [b.read_bytes() for b in again]
+    ssp = tmp_path / "a" / "maglev_regulation_prop2.ssp"
+    names = zipfile.ZipFile(ssp).namelist()
+    assert "SystemStructure.ssd" in names and "resources/Maglev.fmu" in names
+    packed = simulate(read_scenario(ssp), stop_time=0.05, record=["plant.q"])
+    folder = simulate(scenario("maglev_regulation_prop2", fmu_dir), stop_time=0.05, record=["plant.q"])
+    np.testing.assert_array_equal(packed["plant.q"], folder["plant.q"])

@@ -16,6 +16,7 @@ fails the test with the case. Counts go to the tally (docs/reliability.md).
 """
 from __future__ import annotations
 
+import ctypes
 import math
 
 import numpy as np
@@ -23,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from components import catalog, maglev, mems, references
+from components import certificates, catalog, maglev, mems, references
 from components.ph_plant import Jet
 from components.plant_step import PlantStepper
 
@@ -54,10 +55,16 @@ def value(default: float, scale: float | None = None) -> st.SearchStrategy:
     return st.one_of(st.just(default), scaled, scaled, st.sampled_from(SPECIAL), st.floats(allow_nan=True, allow_infinity=True))
 
 
+# Integer parameters (a controller's `strict`) take integers: 0, 1, others and the 32-bit extremes
+INTEGER_PARAMETERS = {"strict"}
+INTEGER_VALUES = st.one_of(st.sampled_from([0, 1, 2, -1, 2**31 - 1, -2**31]), st.integers(-2**31, 2**31 - 1))
+
+
 def overrides(defaults: dict[str, float], scales: dict[str, float] = {}, max_size: int = 3) -> st.SearchStrategy:
     names = sorted(defaults)
     return st.lists(st.sampled_from(names), max_size=max_size, unique=True).flatmap(
-        lambda keys: st.fixed_dictionaries({k: value(defaults[k], scales.get(k)) for k in keys}))
+        lambda keys: st.fixed_dictionaries({k: INTEGER_VALUES if k in INTEGER_PARAMETERS else
+                                            value(defaults[k], scales.get(k)) for k in keys}))
 
 
 def step_size(identifier: str) -> st.SearchStrategy:
@@ -198,6 +205,14 @@ def _components_u(identifier: str, values: dict, inputs: dict) -> tuple[bool, fl
             controller = catalog.controller(identifier, {n: values[n] for n in names})
     except Exception:                                          # noqa: BLE001 - ValueError, OverflowError, ...
         return False, math.nan
+    try:                                                       # the FMU's own Integer parameter, as the worker
+        strict = ctypes.c_int(int(values.get("strict", 0))).value    # sets it (fmi2Integer: 32 bits, wraps)
+    except (OverflowError, ValueError):
+        return False, math.nan
+    if strict not in (0, 1):
+        return False, math.nan
+    if strict == 1 and any(c.verdict == certificates.FAILS for c in certificates.design_checks(controller)):
+        return False, math.nan                                 # strict: a violated condition refuses
     if not all(math.isfinite(v) for v in inputs.values()):
         return True, math.nan
     try:

@@ -5,7 +5,7 @@
 Per FMU, at the communication step h of the paper's MEMS examples (1e-6 s) or, for the maglev (the
 paper gives none), its default experiment's step (1e-3 s):
   plant       doStep alone, and setReal(u) + doStep + getReal(q, p, x_e), versus PlantStepper.advance;
-  controller  setReal(inputs) + doStep + getReal(u), versus controller.u(eta, jet);
+  controller  setReal(inputs) + doStep + getReal(u), versus controller.u_scalar(q, p, x_e, jet);
   reference   doStep + getReal(jet), versus reference.jet(t).
 FMI calls go straight to the FMU's ctypes functions with pre-allocated arrays (what a C master pays);
 "fmpy" is the same through FMU2Slave's Python methods. Inputs vary from step to step like in a loop.
@@ -34,7 +34,6 @@ from fmpy import extract, read_model_description   # noqa: E402
 from fmpy.fmi2 import FMU2Slave                      # noqa: E402
 
 from components import maglev, mems, references      # noqa: E402
-from components.ph_plant import Jet                  # noqa: E402
 from components.plant_step import PlantStepper      # noqa: E402
 from components.proposition1 import Proposition1    # noqa: E402
 from components.proposition2 import Proposition2    # noqa: E402
@@ -156,8 +155,8 @@ def bench_controller(path: Path, identifier: str, n: int) -> list[tuple[str, flo
                 u = raw.fmu.getReal([raw.vr["u"]])[0]
             fmu_ns.append(time.perf_counter_ns() - t0)
             t0 = time.perf_counter_ns()
-            jet = Jet(*(np.array([xi]) for xi in x[3:])) if len(x) > 3 else None
-            direct = float(controller.u(np.array(x[:3]), jet)[0])
+            jet = tuple(float(xi) for xi in x[3:]) if len(x) > 3 else None       # what the FMU computes
+            direct = float(controller.u_scalar(float(x[0]), float(x[1]), float(x[2]), jet))
             direct_ns.append(time.perf_counter_ns() - t0)
             assert u == direct, (u, direct)
         rows.append((f"{identifier} {label}", median_us(fmu_ns), median_us(direct_ns)))

@@ -264,6 +264,11 @@ class OneDOFPlant(EMPlant):
     def d2Psi(self, q):
         return np.array([[[[self.d2psi(q[0])]]]])
 
+    def H(self, eta):
+        """Hamiltonian p^2/(2m) + V(q) + Psi(q) x_e^2 / 2, eq. (open-loop elecmech), in scalars."""
+        q, p, x_e = eta[0], eta[1], eta[2]
+        return 0.5 * p * p / self.m + self.V_s(q) + 0.5 * self.psi(q) * x_e * x_e
+
     # ---- feasible references (Definition 1) --------------------------------------------------------
     def feasible_state(self, jet: Jet) -> tuple[np.ndarray, np.ndarray]:
         q, p, x_e, x_e_dot = self.feasible_scalar(*(float(np.asarray(v).reshape(-1)[0])

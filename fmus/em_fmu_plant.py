@@ -58,7 +58,7 @@ class PlantSlave(EMSlave):
     def energy(self) -> float:
         if self._H is None:
             plant = self.plant if self.plant is not None else self.make_plant()
-            self._H = float(plant.H(np.array(self.state())))
+            self._H = float(plant.H(self.state()))
         return self._H
 
     # ---- life cycle -----------------------------------------------------------------------------

@@ -85,8 +85,8 @@ def reuse_gain(scenario_name: str, fmu_dir: str, stop_time: float, n: int = 6) -
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", default="maglev_tracking_D0_R0.82")
-    ap.add_argument("--runs", type=int, default=24)
-    ap.add_argument("--stop-time", type=float, default=0.5, help="horizon of each run [s]")
+    ap.add_argument("--runs", type=int, default=16)
+    ap.add_argument("--stop-time", type=float, default=2.0, help="horizon of each run [s] (runs of about 0.7 s wall time)")
     ap.add_argument("--fmu-dir", default=str(ROOT / "build" / "fmus"))
     ap.add_argument("--repeat", type=int, default=2, help="measurements per worker count (best is kept)")
     args = ap.parse_args()

@@ -120,8 +120,8 @@ def bench_plant(path: Path, identifier: str, n: int) -> list[tuple[str, float, f
 CONTROLLERS = {
     "MEMS_Proposition1": lambda: Proposition1(mems.MEMS(), 3e-5, mems.R_e_bar_from_rbar_e(100.0), 0.0),
     "MEMS_Theorem2": lambda: Theorem2(mems.MEMS(), mems.R_e_bar_from_rbar_e(100.0), 0.0),
-    "Maglev_Proposition2": lambda: Proposition2(maglev.Maglev(), 0.0025, 0.82, 20.0, 0.0),
-    "Maglev_Theorem3": lambda: Theorem3(maglev.Maglev(), 0.82, 20.0, 0.0),
+    "Maglev_Proposition2": lambda: Proposition2(maglev.Maglev(), 0.0025, 2.82, 20.0, 0.0),
+    "Maglev_Theorem3": lambda: Theorem3(maglev.Maglev(), 2.82, 20.0, 0.0),
 }
 
 

@@ -27,7 +27,8 @@ _q_d = {"MEMS": Parameter("q_d", 3e-5, "m", "set-point position", "any"),
         "Maglev": Parameter("q_d", 0.0025, "m", "set-point position (q_d < c)", "any")}
 _rbar_e = Parameter("rbar_e", 100.0, "Ohm", "desired series resistance: R_e_bar = 1/rbar_e (K_e = 1/rbar_e - 1/r_e)")
 _D_d_mems = Parameter("D_d", 0.0, "C/m", "coupled damping D_d of eq. (closedloop)", "any")
-_R_e_bar = Parameter("R_e_bar", 0.82, "Ohm", "desired electrical damping R_e_bar = R_e + K_e > 0 (eq. barRe)")
+_R_e_bar = Parameter("R_e_bar", 2.82, "Ohm", "desired electrical damping R_e_bar = R_e + K_e > 0 (eq. barRe); the "
+                     "paper's conditions ask K_e >= 0 (Prop. 2), K_e > 0 (Thm. 3), i.e. R_e_bar >= R_e = 2.25")
 _k_c = Parameter("k_c", 20.0, "1", "weight of Theta_2 / Phi_2 = k_c/2 (z - L)^2 (SI numbers; z mixes units)")
 _D_d_maglev = Parameter("D_d", 0.0, "Wb/m", "coupled damping D_d of eq. (closedloop), general convention "
                         "(the paper's Sec. 7.2 value divided by 2k)", "any")

@@ -282,14 +282,19 @@ def _attr(el: ET.Element, name: str, path: Path) -> str:
     return v
 
 
-def _float(raw: str, path: Path, what: str) -> float:
+def finite_number(text: str, where: str) -> float:
+    """`text` as a finite float, or a ScenarioError "where = 'text' is not a number / not finite"."""
     try:
-        x = float(raw)
+        x = float(text)
     except ValueError:
-        raise ScenarioError(f"{path}: {what} = {raw!r} is not a number") from None
+        raise ScenarioError(f"{where} = {text.strip()!r} is not a number") from None
     if not math.isfinite(x):
-        raise ScenarioError(f"{path}: {what} = {raw!r} is not finite")
+        raise ScenarioError(f"{where} = {text.strip()!r} is not finite")
     return x
+
+
+def _float(raw: str, path: Path, what: str) -> float:
+    return finite_number(raw, f"{path}: {what}")
 
 
 # ---- writing --------------------------------------------------------------------------------------

@@ -21,7 +21,6 @@ from __future__ import annotations
 import atexit
 import copy
 import itertools
-import math
 import sys
 import threading
 import time
@@ -33,7 +32,7 @@ from typing import Iterator, TextIO
 import numpy as np
 
 from .errors import ScenarioError
-from .ssd import Parameter, Scenario, read_scenario
+from .ssd import Parameter, Scenario, finite_number, read_scenario
 
 METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
 """The metrics of report.run_metrics put in the table (initial_error is kept too, not plotted)."""
@@ -49,7 +48,7 @@ def parse_grid(spec: str) -> tuple[str, list[float]]:
         parts = values_text.split(":")
         if len(parts) != 3:
             raise ScenarioError(f"--grid {spec}: expected COMPONENT.PARAMETER=START:STOP:N")
-        start, stop = (_number(p, f"--grid {spec}") for p in parts[:2])
+        start, stop = (finite_number(p, f"--grid {spec}") for p in parts[:2])
         try:
             n = int(parts[2])
         except ValueError:
@@ -57,7 +56,7 @@ def parse_grid(spec: str) -> tuple[str, list[float]]:
         if n < 1 or (n == 1 and start != stop):
             raise ScenarioError(f"--grid {spec}: N must be >= 2 (or 1 with START = STOP)")
         return name, [float(v) for v in np.linspace(start, stop, n)]
-    values = [_number(v, f"--grid {spec}") for v in values_text.split(",")]
+    values = [finite_number(v, f"--grid {spec}") for v in values_text.split(",")]
     return name, values
 
 
@@ -67,7 +66,7 @@ def parse_sample(spec: str) -> tuple[str, float, float]:
     parts = values_text.split(":")
     if len(parts) != 2:
         raise ScenarioError(f"--sample {spec}: expected COMPONENT.PARAMETER=LOW:HIGH")
-    low, high = (_number(p, f"--sample {spec}") for p in parts)
+    low, high = (finite_number(p, f"--sample {spec}") for p in parts)
     if not low <= high:
         raise ScenarioError(f"--sample {spec}: LOW must not exceed HIGH")
     return name, low, high
@@ -80,16 +79,6 @@ def _split(spec: str, option: str, form: str) -> tuple[str, str]:
     if not sep or not dot or not comp or not var or not values.strip():
         raise ScenarioError(f"{option} {spec}: expected COMPONENT.PARAMETER={form}")
     return name, values.strip()
-
-
-def _number(text: str, where: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise ScenarioError(f"{where}: {text.strip()!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ScenarioError(f"{where}: {text.strip()!r} is not finite")
-    return x
 
 
 def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, float]] = (),

@@ -106,7 +106,8 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
     return runs, walls
 
 
-def _done(i: int, n: int, name: str, outcome, out) -> str:
+def _done(i: int, n: int, name: str, outcome) -> str:
+    """The line that reports a finished scenario: its size and time, or why it failed."""
     if isinstance(outcome, Exception):
         return f"[{i}/{n}] {name}: failed: {' '.join(str(outcome).split())}"
     return f"[{i}/{n}] {name}: {len(outcome[1])} communication points in {outcome[2]:.1f} s"
@@ -122,7 +123,7 @@ def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
             outcome = errors[name] = exc
         finally:
             bar.close()
-        print(_done(i, len(names), name, outcome, out), file=out, flush=True)
+        print(_done(i, len(names), name, outcome), file=out, flush=True)
     return results
 
 
@@ -154,7 +155,7 @@ def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) -> dict:
                     outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
                 fraction.pop(name, None)
                 finished += 1
-                print(("\r\033[K" if tty else "") + _done(finished, len(names), name, outcome, out),
+                print(("\r\033[K" if tty else "") + _done(finished, len(names), name, outcome),
                       file=out, flush=True)
             now = time.monotonic()
             if fraction and (tty or now - last_line > 5.0):

@@ -252,18 +252,5 @@ def cmd_sweep(args) -> int:
     return 0
 
 
-def entry() -> None:
-    """The `emcosim` console script: main(), then the process ends with its exit status without running
-    the C-level exit handlers. pythonfmu 0.7.0 FMUs sometimes leave the heap in a state that glibc's
-    exit-time checks reject (docs/reliability.md, finding 1): an abort after every result is written
-    must not turn a successful run into exit status 134."""
-    import os
-
-    code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-
-
 if __name__ == "__main__":
-    entry()
+    sys.exit(main())

@@ -35,25 +35,3 @@ def fmu_dir() -> Path:
     missing = [m for m in build.FMUS if not (d / f"{m}.fmu").is_file()]
     assert not missing, f"FMUs not built: {missing} in {d}"
     return d
-
-
-# ---- the exit of the test process -----------------------------------------------------------------
-# Known defect (docs/reliability.md, finding 1): after many pythonfmu 0.7.0 FMU instances have lived in a
-# process, glibc sometimes finds the heap corrupted when the process exits (abort in an atexit handler of
-# numpy's libgfortran) and the process ends with status 134 after every test has run and been reported.
-# The tests' verdict is what this process must return, so it ends with os._exit(status) once pytest has
-# written its report, skipping the C-level exit handlers. The defect stays visible in its own test:
-# tests/reliability/test_lifecycle.py::test_process_exits_cleanly_after_1000_lifecycles.
-
-def pytest_sessionfinish(session, exitstatus):
-    session.config._emcosim_exitstatus = int(exitstatus)
-
-
-@pytest.hookimpl(trylast=True)
-def pytest_unconfigure(config):
-    status = getattr(config, "_emcosim_exitstatus", None)
-    if status is None or os.environ.get("EMCOSIM_TEST_NORMAL_EXIT"):
-        return
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)

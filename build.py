@@ -61,26 +61,10 @@ def fingerprint() -> str:
     return digest.hexdigest()
 
 
-def _fix_binary(name: str, data: bytes) -> bytes:
-    """pythonfmu's linux64 export library with its exit-time defect removed (fmus/export_library.py)."""
-    if not (name.startswith("binaries/linux64/") and name.endswith(".so")):
-        return data
-    if str(FMU_SOURCES) not in sys.path:
-        sys.path.insert(0, str(FMU_SOURCES))
-    import export_library                                 # fmus/export_library.py: build time only, not bundled
-
-    try:
-        return export_library.patch(data)
-    except export_library.NotApplicable as exc:
-        print(f"warning: {name}: exit-time fix not applied ({exc}); a host may abort at exit", file=sys.stderr)
-        return data
-
-
 def _repack(src: Path, dest: Path) -> None:
     """Rewrite a zip archive with sorted entries, fixed timestamps and permissions (reproducible)."""
     with zipfile.ZipFile(src) as zin:
-        entries = sorted((i.filename, _fix_binary(i.filename, zin.read(i.filename)))
-                         for i in zin.infolist() if not i.is_dir())
+        entries = sorted((i.filename, zin.read(i.filename)) for i in zin.infolist() if not i.is_dir())
     tmp = dest.with_suffix(".fmu.tmp")
     with zipfile.ZipFile(tmp, "w") as zout:
         for name, data in entries:

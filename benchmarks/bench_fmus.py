@@ -7,13 +7,14 @@ paper gives none), its default experiment's step (1e-3 s):
   plant       doStep alone, and setReal(u) + doStep + getReal(q, p, x_e), versus PlantStepper.advance;
   controller  setReal(inputs) + doStep + getReal(u), versus controller.u_scalar(q, p, x_e, jet);
   reference   doStep + getReal(jet), versus reference.jet(t).
-FMI calls go straight to the FMU's ctypes functions with pre-allocated arrays (what a C master pays);
+Python host: FMI calls go straight to the FMU's ctypes functions with pre-allocated arrays;
 "fmpy" is the same through FMU2Slave's Python methods. Inputs vary from step to step like in a loop.
+The first rows measure the floor that pythonfmu 0.7.0 itself sets in this host, with a trivial slave (a
+static gain, tests/fixtures/emcosim_toy_gain.py) built on the spot. Each FMU's figure is printed
+beside that floor.
+C host: the same loop in tests/fixtures/c_host.c (compiled on the spot with gcc; pythonfmu starts its
+own interpreter), i.e. what Simulink, OpenModelica or libcosim pay: no ctypes on the caller's side.
 Targets (issue 3): MEMS plant doStep at h = 1e-6 s <= 50 us; controller set + doStep + get <= 10 us.
-
-The first rows measure the floor that pythonfmu 0.7.0 itself sets, with a trivial slave (a static gain,
-tests/fixtures/emcosim_toy_gain.py) built on the spot: every FMI call crosses into the embedded
-interpreter and back, whatever the slave computes. Each FMU's figure is printed beside that floor.
 """
 from __future__ import annotations
 
@@ -210,6 +211,31 @@ def bench_floor(n: int) -> list[tuple[str, float, float]]:
             ("pythonfmu floor: set + doStep + get", median_us(loop_ns), math.nan)]
 
 
+def bench_c_host(folder: Path, n: int) -> list[tuple[str, float, float]] | str:
+    """Each FMU in the C host of tests/fixtures/c_host.c (no Python on the caller's side: what Simulink,
+    OpenModelica or libcosim pay): (name, median us of set + doStep + get, median us of doStep alone),
+    or why the host cannot be built here."""
+    import tempfile
+    from tests.c_host import CONTROLLER_INPUTS, compile_c_host, run_in_c_host
+
+    cases = {"MEMS": ({"u": 25.0}, ["q", "p", "x_e"], H["MEMS"]), "Maglev": ({"u": 0.009045}, ["q", "p", "x_e"], H["Maglev"])}
+    cases.update({i: (x, ["u"], H["MEMS" if i.startswith("MEMS") else "Maglev"]) for i, x in CONTROLLER_INPUTS.items()})
+    cases["Reference"] = ({}, JET, 1e-3)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = Path(tmp) / "c_host"
+        reason = compile_c_host(exe)
+        if reason:
+            return reason
+        for identifier, (inputs, outputs, h) in cases.items():
+            steps = min(n, 500) if identifier == "Maglev" else n      # open loop: the ball reaches the magnet at 2 s
+            run, values = run_in_c_host(exe, folder / f"{identifier}.fmu", Path(tmp), inputs, outputs, h, steps)
+            if run.returncode != 0:
+                raise RuntimeError(f"{identifier} in the C host: exit status {run.returncode}: {run.stderr[-500:]}")
+            rows.append((identifier, values[0] / 1000.0, values[1] / 1000.0))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fmus", default=str(ROOT / "build" / "fmus"), help="folder with the built FMUs")
@@ -233,6 +259,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:9.2f} {fmu_us / floor:9.2f}")
     print("floor: the same FMI calls on a trivial pythonfmu slave, measured in this run (FMU/floor = 1 means "
           "the slave's own work costs nothing)")
+    c_rows = bench_c_host(folder, args.n)
+    print()
+    if isinstance(c_rows, str):
+        print(f"C host: not measured ({c_rows})")
+        return 0
+    python_host = {name.split()[0]: fmu_us for name, fmu_us, _ in rows if "set + doStep + get" in name or
+                   name == "Reference doStep + get"}
+    print(f"{'C host (tests/fixtures/c_host.c), median':42s} {'set+doStep+get [us]':>20s} {'doStep [us]':>12s} "
+          f"{'Python host / C host':>21s}")
+    for identifier, loop_us, step_us in c_rows:
+        print(f"{identifier:42s} {loop_us:20.1f} {step_us:12.1f} {python_host[identifier] / loop_us:21.2f}")
+    print("C host: inputs set (all of them), doStep, outputs read (plants: q, p, x_e; controllers: u; reference: "
+          "its jet); Python host: the table above (ctypes from Python)")
     return 0
 
 

@@ -46,6 +46,7 @@ class ControllerSlave(EMSlave):
         self.input_names = [i[0] for i in inputs]
         self.output("u", module.INPUT[1], module.INPUT[2], self.u_value, self.input_names,
                     self.input_names + list(module.PARAMETERS) + list(self.gains))
+        self._u_vrs = [len(self.variables) - 1]                 # [value reference of u]
         self.controller: Controller | None = None
         self._u: float | None = None
         self._u_error = ""
@@ -86,6 +87,11 @@ class ControllerSlave(EMSlave):
     def inputs_changed(self) -> None:
         self._u = None
 
+    def get_real(self, vrs):
+        if vrs == self._u_vrs:                                  # the call of every communication step
+            return [self.u_value()]
+        return super().get_real(vrs)
+
     def u_value(self) -> float:
         if self._u is None:
             self._u, self._u_error = self.compute_u()
@@ -96,19 +102,20 @@ class ControllerSlave(EMSlave):
     def compute_u(self) -> tuple[float, str]:
         """(u, "") or (nan, reason)."""
         v = self.values
-        for name in self.input_names:
-            if not math.isfinite(v[name]):
-                return math.nan, f"{self.model_identifier}: input {name} = {v[name]} is not finite"
+        x = [v[name] for name in self.input_names]             # q, p, x_e (and the jet)
+        if not math.isfinite(sum(x)):                          # some input is nan or inf (or the sum overflows)
+            for name, value in zip(self.input_names, x):
+                if not math.isfinite(value):
+                    return math.nan, f"{self.model_identifier}: input {name} = {value} is not finite"
         try:
             controller = self.controller
             if controller is None:                       # before initialization: from the current values
                 controller = self.make_controller()
             if controller.scalars is not None:                # one-DOF plant: the law in scalars
-                jet = tuple(v[name] for name, _, _ in JET) if self.tracking else None
-                u = float(controller.u_scalar(v["q"], v["p"], v["x_e"], jet))
+                u = float(controller.u_scalar(x[0], x[1], x[2], x[3:] if self.tracking else None))
             else:
-                jet = Jet(*(np.array([v[name]]) for name, _, _ in JET)) if self.tracking else None
-                u = float(controller.u(np.array([v["q"], v["p"], v["x_e"]]), jet)[0])
+                jet = Jet(*(np.array([xi]) for xi in x[3:])) if self.tracking else None
+                u = float(controller.u(np.array(x[:3]), jet)[0])
         except Exception as exc:                                      # noqa: BLE001 - reported, never raised
             return math.nan, f"{self.model_identifier}: u cannot be computed for the inputs {self.input_values()}: {exc}"
         if not math.isfinite(u):

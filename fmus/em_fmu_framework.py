@@ -24,6 +24,7 @@ import ctypes
 import hashlib
 import math
 import sys
+import threading
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -118,6 +119,65 @@ def hold_script_globals(namespace: dict) -> None:
         ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
 
 
+# pythonfmu versions whose export library was measured to need `finalize_python_at_exit`
+EXIT_HOOK_VERSIONS = {"0.7.0"}
+_EXIT_HOOKS: dict[str, ctypes.CDLL] = {}
+
+
+def finalize_python_at_exit(resources: str, model_identifier: str) -> None:
+    """Have the C runtime release this FMU library's interpreter state first thing at process exit.
+
+    pythonfmu 0.7.0 keeps its interpreter state (`PyState`: the embedded interpreter when the host is
+    not Python) in a global shared_ptr and releases it only from C++ static and ELF destructors, which
+    glibc runs at exit after the exit handlers of every library loaded later (numpy's OpenBLAS and
+    libgfortran), and in an order that resets the already destroyed pointer (docs/reliability.md,
+    finding 1). Measured: a Python host aborted at exit in about 1 of 3 processes ("corrupted
+    double-linked list"), a C host crashed in Py_Finalize in most. Registering the library's own
+    `finalizePythonInterpreter` with __cxa_atexit once it is loaded (numpy is imported by then, so
+    this handler runs before numpy's) releases the state while everything it needs is intact; the
+    destructors then find an empty pointer. The library is never unloaded before exit anyway
+    (glibc marks it NODELETE: it defines unique symbols); the handle kept here makes sure of it."""
+    if not resources or PYTHONFMU_VERSION not in EXIT_HOOK_VERSIONS or not sys.platform.startswith("linux"):
+        return
+    binary = Path(resources).parent / "binaries" / "linux64" / f"{model_identifier}.so"
+    if not binary.is_file():                                 # e.g. the class instantiated by the builder
+        return
+    key = str(binary.resolve())
+    if key in _EXIT_HOOKS:
+        return
+    try:
+        library = ctypes.CDLL(key)                          # the already loaded library: same handle
+        libc = ctypes.CDLL(None)
+        libc.__cxa_atexit.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        if libc.__cxa_atexit(ctypes.cast(library.finalizePythonInterpreter, ctypes.c_void_p), None, None) != 0:
+            raise OSError("__cxa_atexit refused the handler")
+    except (OSError, AttributeError) as exc:
+        print(f"[{model_identifier}] warning: exit handler not registered ({exc}); the host may crash at exit",
+              file=sys.stderr, flush=True)
+        return
+    _EXIT_HOOKS[key] = library
+
+
+_PINNED_THREADS: set[int] = set()
+
+
+def keep_thread_state() -> None:
+    """Keep the calling thread's Python thread state alive between FMI calls, if the host created the
+    thread (a C host calls from its own threads: Python sees a threading._DummyThread).
+
+    pythonfmu enters Python with PyGILState_Ensure and leaves with PyGILState_Release in every FMI
+    call; for a thread Python did not create, that creates and destroys a thread state each time
+    (measured in a C host: about 11 us per call, three times the rest of the call). One more
+    PyGILState_Ensure, never released, keeps the thread state; pythonfmu's Release still releases the
+    GIL after each call (CPython's gilstate counter stays above zero). Cost: one thread state per host
+    thread, freed by Py_Finalize."""
+    thread = threading.current_thread()
+    if not isinstance(thread, threading._DummyThread) or thread.ident in _PINNED_THREADS:
+        return
+    ctypes.pythonapi.PyGILState_Ensure()
+    _PINNED_THREADS.add(thread.ident)
+
+
 _HASHES: dict[str, str] = {}
 
 
@@ -156,11 +216,14 @@ class EMSlave(Fmi2Slave):
         self.by_name: dict[str, Variable] = {}
         self._getters: list[Callable[[], float] | None] = []
         self._setters: list[Callable[[float], None] | None] = []
-        self._is_integer: list[bool] = []
+        self._real_vrs: set[int] = set()                            # value references by type
+        self._integer_vrs: set[int] = set()
         self._real_inputs: dict[int, str] = {}                      # value reference -> name
         self.initialized = False
         self.time = 0.0
         self.declare()
+        finalize_python_at_exit(self.resources, self.model_identifier)
+        keep_thread_state()
 
     # ---- declaration ----------------------------------------------------------------------------
     def declare(self) -> None:
@@ -204,7 +267,7 @@ class EMSlave(Fmi2Slave):
             self._real_inputs[len(self._getters)] = name
         self._getters.append(getter)
         self._setters.append(setter)
-        self._is_integer.append(var.integer)
+        (self._integer_vrs if var.integer else self._real_vrs).add(len(self._getters) - 1)
 
     def _make_setter(self, var: Variable) -> Callable[[float], None]:
         name, is_input, integer = var.name, var.causality == "input", var.integer
@@ -229,18 +292,23 @@ class EMSlave(Fmi2Slave):
         """Hook: an input was set (controllers drop their cached output)."""
 
     # ---- FMI get/set (never raise into the host) --------------------------------------------------
+    def _check_type(self, vr: int, integer: bool) -> None:
+        if vr not in (self._integer_vrs if integer else self._real_vrs):
+            what = f"variable {self.vars[vr].name}" if vr in self.vars else f"valueReference {vr}"
+            raise TypeError(f"{what} is not of type {'Integer' if integer else 'Real'}")
+
     def _get(self, vrs, integer: bool) -> list:
-        try:                                                          # fast path: all references valid
-            if all(self._is_integer[vr] == integer for vr in vrs):
-                return [(int if integer else float)(self._getters[vr]()) for vr in vrs]
-        except Exception:                                             # noqa: BLE001 - retried one by one below
-            pass
+        getters = self._getters
+        if (self._integer_vrs if integer else self._real_vrs).issuperset(vrs):   # fast path: all valid
+            try:
+                return [int(getters[vr]()) for vr in vrs] if integer else [float(getters[vr]()) for vr in vrs]
+            except Exception:                                         # noqa: BLE001 - retried one by one below
+                pass
         out = []
         for vr in vrs:
             try:
-                if self._is_integer[vr] != integer:
-                    raise TypeError(f"variable {self.vars[vr].name} is not of type {'Integer' if integer else 'Real'}")
-                value = self._getters[vr]()
+                self._check_type(vr, integer)
+                value = getters[vr]()
                 out.append(int(value) if integer else float(value))
             except Exception as exc:                                  # noqa: BLE001 - must not reach the host
                 self.log_error(f"get of valueReference {vr} failed: {exc}")
@@ -249,20 +317,21 @@ class EMSlave(Fmi2Slave):
 
     def _set(self, vrs, values, integer: bool) -> None:
         if not integer:                                               # fast path: Real inputs only
-            inputs = self._real_inputs
-            if all(vr in inputs for vr in vrs):
-                store = self.values
+            inputs, store = self._real_inputs, self.values
+            try:
                 for vr, value in zip(vrs, values):
                     store[inputs[vr]] = float(value)
+            except KeyError:                                          # not all inputs: set one by one below
+                pass
+            else:
                 self.inputs_changed()
                 return
         for vr, value in zip(vrs, values):
             try:
+                self._check_type(vr, integer)
                 setter = self._setters[vr]
                 if setter is None:
                     raise TypeError(f"variable {self.vars[vr].name} is an output and cannot be set")
-                if self._is_integer[vr] != integer:
-                    raise TypeError(f"variable {self.vars[vr].name} is not of type {'Integer' if integer else 'Real'}")
                 setter(value)
             except Exception as exc:                                  # noqa: BLE001
                 self.log_error(f"set of valueReference {vr} failed: {exc}")

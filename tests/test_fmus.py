@@ -559,37 +559,3 @@ def test_fmus_run_without_this_project_installed(fmus, tmp_path):
         assert run.returncode == 0, f"{identifier}: {run.stdout[-500:]} {run.stderr[-1500:]}"
         assert len(out.read_text().splitlines()) > 10, identifier
 
-
-# ---- the shipped export library (fmus/export_library.py) ------------------------------------------
-def _pythonfmu_library() -> bytes:
-    import pythonfmu
-
-    return (Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64" / "libpythonfmu-export.so").read_bytes()
-
-
-def test_export_library_patch_redirects_only_the_unload_destructor():
-    """pythonfmu's library calls onLibraryUnload from .fini_array; the patched copy calls _fini (a no-op)
-    there instead, and differs from the original in exactly that relocation and that slot (16 bytes)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fmus"))
-    import export_library
-
-    original = _pythonfmu_library()
-    assert export_library.fini_array(original) == ["__do_global_dtors_aux", export_library.DESTRUCTOR]
-    patched = export_library.patch(original)
-    assert export_library.fini_array(patched) == ["__do_global_dtors_aux", "_fini"]
-    assert len(patched) == len(original)
-    assert sum(a != b for a, b in zip(original, patched)) <= 16
-    with pytest.raises(export_library.NotApplicable, match="0 .fini_array relocations"):
-        export_library.patch(patched)                                  # applied once, never twice
-    with pytest.raises(export_library.NotApplicable, match="not a little-endian x86-64"):
-        export_library.patch(b"MZ" + bytes(100))
-
-
-def test_built_fmus_ship_the_patched_library(fmus):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fmus"))
-    import export_library
-
-    for identifier, path in fmus.items():
-        with zipfile.ZipFile(path) as z:
-            library = z.read(f"binaries/linux64/{identifier}.so")
-        assert export_library.fini_array(library) == ["__do_global_dtors_aux", "_fini"], identifier

@@ -92,11 +92,12 @@ N_EXITS = 20
 
 
 def test_processes_that_keep_the_library_loaded_exit_cleanly(reliability_fmus):
-    """pythonfmu 0.7.0's export library, unpatched, corrupts the heap at the exit of a process that
-    still has it loaded (docs/reliability.md, finding 1): measured side by side, 13 of 40 processes
-    aborted with the unpatched library, 0 of 40 with the library build.py ships. Each process here
-    runs one lifecycle of MEMS_Theorem2 and exits with the library loaded; all N_EXITS must end with
-    status 0 (an unpatched library passes this with probability about 0.7**20 = 0.1 %)."""
+    """pythonfmu 0.7.0's library corrupts the heap at the exit of a process that still has it loaded
+    (always the case: glibc never unloads it) unless the FMU registers its exit handler
+    (em_fmu_framework.finalize_python_at_exit; docs/reliability.md, finding 1): without it, 4 of 16
+    processes aborted after one lifecycle of MEMS_Theorem2 and 11 to 13 of 40 after 1000; with it, 0 of 24
+    and 0 of 40. Each process here runs one lifecycle and exits; all N_EXITS must end with status 0
+    (without the handler this passes with probability about 0.75**20 = 0.3 %)."""
     request = _worker.dumps({"fmu": str(reliability_fmus["MEMS_Theorem2"]), "n": 1, "h": 1e-6, "warmup": 0})
     statuses = []
     for batch in range(N_EXITS // 2):                                      # two processes at a time

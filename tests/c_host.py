@@ -1,0 +1,73 @@
+"""A minimal C host for the FMUs (tests/fixtures/c_host.c): compile it, run an FMU in it.
+Used by tests/test_c_host.py and benchmarks/bench_fmus.py."""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+import sysconfig
+import zipfile
+from pathlib import Path
+
+from fmpy import read_model_description
+
+SOURCE = Path(__file__).parent / "fixtures" / "c_host.c"
+
+
+def libpython() -> Path | None:
+    """The shared libpython of this interpreter (pythonfmu's library expects the host to provide it)."""
+    lib = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("LDLIBRARY") or "")
+    return lib if sysconfig.get_config_var("Py_ENABLE_SHARED") and lib.is_file() else None
+
+
+def compile_c_host(exe: Path) -> str | None:
+    """Compile the C host to `exe`; None, or why it cannot be built here."""
+    if shutil.which("gcc") is None or libpython() is None:
+        return "needs gcc and a shared libpython"
+    import fmpy
+
+    libdir = str(libpython().parent)
+    subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"), str(SOURCE),
+                    "-o", str(exe), "-ldl", "-lm", "-Wl,--no-as-needed", f"-L{libdir}",
+                    f"-lpython{sysconfig.get_config_var('LDVERSION')}", f"-Wl,-rpath,{libdir}"],
+                   check=True, capture_output=True)
+    return None
+
+
+def run_in_c_host(exe: Path, fmu: Path, workdir: Path, inputs: dict[str, float], outputs: list[str], h: float,
+                  n: int, unload: bool = False) -> tuple[subprocess.CompletedProcess, list[float]]:
+    """Run the C host on an FMU (extracted into `workdir`); returns the process and the values it printed:
+    median ns of set + doStep + get, median ns of doStep alone, then the outputs of the last step."""
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    identifier = md.coSimulation.modelIdentifier
+    folder = workdir / identifier
+    if not folder.exists():
+        with zipfile.ZipFile(fmu) as z:
+            z.extractall(folder)
+    args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
+            (folder / "resources").as_uri(), repr(h), str(n), str(len(inputs)), *(str(vr[k]) for k in inputs),
+            str(len(outputs)), *(str(vr[k]) for k in outputs), *(repr(v) for v in inputs.values())]
+    env = dict(os.environ, PYTHONPATH=sysconfig.get_paths()["purelib"])
+    env.pop("C_HOST_UNLOAD", None)
+    if unload:
+        env["C_HOST_UNLOAD"] = "1"
+    run = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
+    values = [float(x) for x in run.stdout.split()] if run.returncode == 0 else []
+    return run, values
+
+
+def last_inputs(start: dict[str, float], n: int) -> list[float]:
+    """The inputs c_host.c sets at its last step of the first pass."""
+    return [x * (1.0 + 0.01 * math.sin(0.1 * (n - 1) + i)) for i, x in enumerate(start.values())]
+
+
+CONTROLLER_INPUTS = {
+    "MEMS_Proposition1": {"q": 1.5e-5, "p": 1e-12, "x_e": 4e-11},
+    "MEMS_Theorem2": {"q": 1.5e-5, "p": 1e-12, "x_e": 4e-11, "q_star": 3e-5, "q_star_dot": 1e-3,
+                      "q_star_ddot": -0.3, "q_star_dddot": 10.0},
+    "Maglev_Proposition2": {"q": 0.002, "p": 1e-3, "x_e": 0.9},
+    "Maglev_Theorem3": {"q": 0.002, "p": 1e-3, "x_e": 0.9, "q_star": 0.0025, "q_star_dot": 0.01,
+                        "q_star_ddot": -0.3, "q_star_dddot": 2.0},
+}

@@ -236,6 +236,17 @@ def bench_c_host(folder: Path, n: int) -> list[tuple[str, float, float]] | str:
     return rows
 
 
+def machine_speed_us() -> float:
+    """Median time of a fixed pure-Python workload, sum(range(1000)), measured in this run: the
+    figures above scale with it from day to day on a shared machine."""
+    samples = []
+    for _ in range(200):
+        t0 = time.perf_counter_ns()
+        sum(range(1000))
+        samples.append(time.perf_counter_ns() - t0)
+    return median_us(samples)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fmus", default=str(ROOT / "build" / "fmus"), help="folder with the built FMUs")
@@ -245,6 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (folder / "MEMS.fmu").exists():
         import build
         build.build(folder)
+    speed = machine_speed_us()
     rows = bench_floor(args.n)
     for identifier in ("MEMS", "Maglev"):
         rows += bench_plant(folder / f"{identifier}.fmu", identifier, args.n)
@@ -259,6 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:9.2f} {fmu_us / floor:9.2f}")
     print("floor: the same FMI calls on a trivial pythonfmu slave, measured in this run (FMU/floor = 1 means "
           "the slave's own work costs nothing)")
+    print(f"machine speed in this run: sum(range(1000)) takes {speed:.1f} us")
     c_rows = bench_c_host(folder, args.n)
     print()
     if isinstance(c_rows, str):

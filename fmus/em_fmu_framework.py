@@ -167,7 +167,7 @@ def keep_thread_state() -> None:
 
     pythonfmu enters Python with PyGILState_Ensure and leaves with PyGILState_Release in every FMI
     call; for a thread Python did not create, that creates and destroys a thread state each time
-    (measured in a C host: a controller's doStep took 12.6 us, 2.0 us with the thread state kept).
+    (measured in a C host: a controller's doStep took 12.7 us, 2.0 us with the thread state kept).
     One more PyGILState_Ensure, never released, keeps the thread state; pythonfmu's Release still
     releases the GIL after each call (CPython's gilstate counter stays above zero). Done for the
     thread that instantiates the FMU (other threads keep working, at the higher cost). Cost: one

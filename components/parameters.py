@@ -9,12 +9,18 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
+# Magnitudes a parameter may have besides 0: a few products and reciprocals of such numbers stay finite
+# in double precision (1e100 cubed is 1e300), so a value outside is refused by name instead of
+# surfacing later as an overflow or a division by zero somewhere in the model.
+TINY, HUGE = 1e-100, 1e100
+
 
 @dataclass(frozen=True)
 class Parameter:
     """A scalar physical parameter.
 
-    `condition` is one of "> 0", ">= 0", "any" (finite) and is checked by `check`.
+    `condition` is one of "> 0", ">= 0", "any" (finite) and is checked by `check`, together with
+    TINY <= |value| <= HUGE for every value other than 0.
     """
 
     name: str
@@ -36,6 +42,9 @@ class Parameter:
             raise ValueError(f"{where}parameter {self.name} = {x} violates {self.name} > 0 ({self.description})")
         if self.condition == ">= 0" and not x >= 0:
             raise ValueError(f"{where}parameter {self.name} = {x} violates {self.name} >= 0 ({self.description})")
+        if x != 0 and not TINY <= abs(x) <= HUGE:
+            raise ValueError(f"{where}parameter {self.name} = {x} violates {TINY:g} <= |{self.name}| <= {HUGE:g} "
+                             "(magnitudes the model's arithmetic can represent)")
         return x
 
 

@@ -359,7 +359,13 @@ class EMSlave(Fmi2Slave):
             self.initialize()
         except Exception as exc:                                      # noqa: BLE001
             self.initialized = False
-            self._raise_to_host(exc, f"{self.model_identifier}: initialization failed: {exc}")
+            reason = str(exc)
+            if isinstance(exc, ArithmeticError):                      # name the suspects
+                changed = [f"{v.name} = {self.values[v.name]!r}" for v in self.variables
+                           if v.causality == "parameter" and self.values[v.name] != v.start]
+                reason = (f"{type(exc).__name__} ({exc}) evaluating the model with the parameters changed "
+                          f"from their defaults: {', '.join(changed) or 'none'}")
+            self._raise_to_host(exc, f"{self.model_identifier}: initialization failed: {reason}")
         self.initialized = True
 
     def initialize(self) -> None:

@@ -415,6 +415,9 @@ def test_fmu_state_round_trip_reproduces_run(fmus, identifier, h):
     ("MEMS", {"rtol": 0.5}, ["rtol", "rtol <= 1e-2"]),
     ("MEMS", {"q_0": -2e-5}, ["q_0", "q + c0 > 0"]),
     ("Maglev", {"m": 0.0}, ["m", "m > 0"]),
+    ("MEMS", {"m": 1e-300}, ["m = 1e-300", "1e-100 <= |m| <= 1e+100"]),
+    ("MEMS", {"c0": 1e300}, ["c0 = 1e+300", "1e-100 <= |c0| <= 1e+100"]),
+    ("MEMS", {"c0": 1e100, "a2": 1e100}, ["ZeroDivisionError", "c0 = 1e+100", "a2 = 1e+100"]),   # each in range
     ("Maglev", {"q_0": 0.006}, ["q_0", "q < c"]),
     ("MEMS_Proposition1", {"D_d": -1.0}, ["D_d", "pHcondition"]),
     ("MEMS_Theorem2", {"rbar_e": -100.0}, ["rbar_e", "rbar_e > 0"]),
@@ -423,6 +426,7 @@ def test_fmu_state_round_trip_reproduces_run(fmus, identifier, h):
     ("Reference", {"kind": 3}, ["kind", "kind in {0, 1, 2}"]),
     ("Reference", {"kind": 2, "duration": 0.0}, ["duration", "duration > 0"]),
 ])
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")      # the c0, a2 = 1e100 case
 def test_invalid_parameter_fails_initialization_with_reason(fmus, identifier, values, words):
     """pythonfmu 0.7.0 reports a failed initialization as fmi2Fatal (no fmi2Error is reachable); the
     message names the parameter and the condition, and the host keeps running."""

@@ -73,7 +73,7 @@ def test_maglev_matches_the_papers_model():
 @pytest.mark.parametrize("module,cls", [(mems, MEMS), (maglev, Maglev)])
 def test_invalid_parameters_are_refused_by_name(module, cls):
     for spec in module.PARAMETERS.values():
-        bad = [float("nan"), float("inf"), "abc"] + ([0.0, -1.0] if spec.condition == "> 0" else [-1.0])
+        bad = [float("nan"), float("inf"), "abc", 1e-300, 1e300] + ([0.0, -1.0] if spec.condition == "> 0" else [-1.0])
         for value in bad:
             with pytest.raises(ValueError, match=rf"\b{spec.name}\b"):
                 cls(**{spec.name: value})

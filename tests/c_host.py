@@ -13,6 +13,7 @@ from pathlib import Path
 from fmpy import read_model_description
 
 SOURCE = Path(__file__).parent / "fixtures" / "c_host.c"
+LOOP_SOURCE = Path(__file__).parent / "fixtures" / "c_loop.c"
 
 
 def libpython() -> Path | None:
@@ -21,14 +22,15 @@ def libpython() -> Path | None:
     return lib if sysconfig.get_config_var("Py_ENABLE_SHARED") and lib.is_file() else None
 
 
-def compile_c_host(exe: Path) -> str | None:
-    """Compile the C host to `exe`; None, or why it cannot be built here."""
+def compile_c_host(exe: Path, source: Path = SOURCE) -> str | None:
+    """Compile the C host (or another C master of tests/fixtures) to `exe`; None, or why it cannot be
+    built here."""
     if shutil.which("gcc") is None or libpython() is None:
         return "needs gcc and a shared libpython"
     import fmpy
 
     libdir = str(libpython().parent)
-    subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"), str(SOURCE),
+    subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"), str(source),
                     "-o", str(exe), "-ldl", "-lm", "-Wl,--no-as-needed", f"-L{libdir}",
                     f"-lpython{sysconfig.get_config_var('LDVERSION')}", f"-Wl,-rpath,{libdir}"],
                    check=True, capture_output=True)
@@ -39,13 +41,7 @@ def run_in_c_host(exe: Path, fmu: Path, workdir: Path, inputs: dict[str, float],
                   n: int, unload: bool = False) -> tuple[subprocess.CompletedProcess, list[float]]:
     """Run the C host on an FMU (extracted into `workdir`); returns the process and the values it printed:
     median ns of set + doStep + get, median ns of doStep alone, then the outputs of the last step."""
-    md = read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    identifier = md.coSimulation.modelIdentifier
-    folder = workdir / identifier
-    if not folder.exists():
-        with zipfile.ZipFile(fmu) as z:
-            z.extractall(folder)
+    identifier, folder, vr = _extracted(fmu, workdir)
     args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
             (folder / "resources").as_uri(), repr(h), str(n), str(len(inputs)), *(str(vr[k]) for k in inputs),
             str(len(outputs)), *(str(vr[k]) for k in outputs), *(repr(v) for v in inputs.values())]
@@ -56,6 +52,32 @@ def run_in_c_host(exe: Path, fmu: Path, workdir: Path, inputs: dict[str, float],
     run = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
     values = [float(x) for x in run.stdout.split()] if run.returncode == 0 else []
     return run, values
+
+
+def _extracted(fmu: Path, workdir: Path) -> tuple[str, Path, dict[str, int]]:
+    md = read_model_description(str(fmu))
+    identifier = md.coSimulation.modelIdentifier
+    folder = workdir / identifier
+    if not folder.exists():
+        with zipfile.ZipFile(fmu) as z:
+            z.extractall(folder)
+    return identifier, folder, {v.name: v.valueReference for v in md.modelVariables}
+
+
+def run_loop_in_c_host(exe: Path, plant_fmu: Path, controller_fmu: Path, workdir: Path, h: float,
+                       n: int) -> tuple[subprocess.CompletedProcess, list[float]]:
+    """Plant and controller in closed loop in the C master of tests/fixtures/c_loop.c; returns the
+    process and (q, p, x_e) at t = n h and the last u."""
+    args = [str(exe)]
+    vrs = []
+    for fmu in (plant_fmu, controller_fmu):
+        identifier, folder, vr = _extracted(fmu, workdir)
+        args += [str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier, (folder / "resources").as_uri()]
+        vrs.append(vr)
+    args += [repr(h), str(n)] + [str(vrs[0][k]) for k in ("u", "q", "p", "x_e")] + [str(vrs[1][k]) for k in ("q", "p", "x_e", "u")]
+    env = dict(os.environ, PYTHONPATH=sysconfig.get_paths()["purelib"])
+    run = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
+    return run, ([float(x) for x in run.stdout.split()] if run.returncode == 0 else [])
 
 
 def last_inputs(start: dict[str, float], n: int) -> list[float]:

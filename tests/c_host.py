@@ -45,13 +45,18 @@ def run_in_c_host(exe: Path, fmu: Path, workdir: Path, inputs: dict[str, float],
     args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
             (folder / "resources").as_uri(), repr(h), str(n), str(len(inputs)), *(str(vr[k]) for k in inputs),
             str(len(outputs)), *(str(vr[k]) for k in outputs), *(repr(v) for v in inputs.values())]
+    return _run(args, unload)
+
+
+def _run(args: list[str], unload: bool = False) -> tuple[subprocess.CompletedProcess, list[float]]:
+    """Run a C master with this environment's site-packages for pythonfmu's interpreter; the values it
+    printed (empty if it failed)."""
     env = dict(os.environ, PYTHONPATH=sysconfig.get_paths()["purelib"])
     env.pop("C_HOST_UNLOAD", None)
     if unload:
         env["C_HOST_UNLOAD"] = "1"
     run = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
-    values = [float(x) for x in run.stdout.split()] if run.returncode == 0 else []
-    return run, values
+    return run, ([float(x) for x in run.stdout.split()] if run.returncode == 0 else [])
 
 
 def _extracted(fmu: Path, workdir: Path) -> tuple[str, Path, dict[str, int]]:
@@ -75,9 +80,7 @@ def run_loop_in_c_host(exe: Path, plant_fmu: Path, controller_fmu: Path, workdir
         args += [str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier, (folder / "resources").as_uri()]
         vrs.append(vr)
     args += [repr(h), str(n)] + [str(vrs[0][k]) for k in ("u", "q", "p", "x_e")] + [str(vrs[1][k]) for k in ("q", "p", "x_e", "u")]
-    env = dict(os.environ, PYTHONPATH=sysconfig.get_paths()["purelib"])
-    run = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
-    return run, ([float(x) for x in run.stdout.split()] if run.returncode == 0 else [])
+    return _run(args)
 
 
 def last_inputs(start: dict[str, float], n: int) -> list[float]:

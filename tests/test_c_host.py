@@ -39,10 +39,7 @@ def test_controller_in_c_host_equals_components_and_exits_cleanly(c_host, fmus, 
     run, values = run_in_c_host(c_host, fmus[identifier], tmp_path, start, ["u"], 1e-6, N, unload=unload)
     assert run.returncode == 0, f"{identifier}: exit status {run.returncode}: {run.stderr[-1500:]}"
     x = last_inputs(start, N)
-    module = mems if identifier.startswith("MEMS") else maglev
-    params = {p.name: p.default for p in module.PARAMETERS.values()}
-    params.update({p.name: p.default for p in catalog.GAINS[identifier].values()})
-    controller = catalog.controller(identifier, params)
+    controller = catalog.controller(identifier)                     # the FMU's defaults
     expected = controller.u_scalar(x[0], x[1], x[2], tuple(x[3:]) if len(x) > 3 else None)
     assert values[2] == pytest.approx(expected, rel=1e-12), identifier
 
@@ -94,9 +91,7 @@ def test_closed_loop_of_two_fmus_in_c_host_equals_components(c_loop, fmus, tmp_p
              if v.start is not None}
     module = mems if plant_id == "MEMS" else maglev
     plant = catalog.plant(plant_id, {k: start[k] for k in module.PARAMETERS})
-    params = {p.name: p.default for p in module.PARAMETERS.values()}
-    params.update({p.name: p.default for p in catalog.GAINS[controller_id].values()})
-    controller = catalog.controller(controller_id, params)
+    controller = catalog.controller(controller_id)                  # the FMU's defaults
     stepper = PlantStepper(plant, rtol=start["rtol"])
     eta = (start["q_0"], start["p_0"], start["x_e_0"])
     for _ in range(n):

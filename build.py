@@ -132,7 +132,7 @@ def pack_scenarios(fmu_dir: Path | str = DEFAULT_DEST, dest: Path | str = SSP_DE
     the FMUs so that the same inputs give the same bytes."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
-    from emcosim.ssp import pack_ssp
+    from emcosim.engine.ssp import pack_ssp
 
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)

@@ -31,11 +31,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from emcosim import paper_scenarios                                   # noqa: E402
-from emcosim.errors import ScenarioError                              # noqa: E402
-from emcosim.master import simulate                                   # noqa: E402
-from emcosim.reference_check import monolithic, monolithic_loop, position_error, position_scale, samples_for  # noqa: E402
-from emcosim.ssd import read_scenario                                 # noqa: E402
+from emcosim.paper import scenarios as paper_scenarios                                 # noqa: E402
+from emcosim.engine.errors import ScenarioError                              # noqa: E402
+from emcosim.engine.master import simulate                                   # noqa: E402
+from emcosim.paper.reference_check import monolithic, monolithic_loop, position_error, position_scale, samples_for  # noqa: E402
+from emcosim.engine.ssd import read_scenario                                 # noqa: E402
 
 OVERHEAD_TARGET = 10e-6
 RATIO_TARGET = 3.0
@@ -88,14 +88,14 @@ def bench(name: str, fmu_dir: Path | None, scale: float, engines: set[str], tole
             row["adaptive_note"] = str(exc).split(":")[0]
     if "container" in engines:
         from fmpy import simulate_fmu
-        from emcosim.container import export_container
+        from emcosim.engine.container import export_container
         with tempfile.TemporaryDirectory() as tmp:
             fmu = export_container(s, Path(tmp) / "loop.fmu")
             c, row["t_container"] = timed(lambda: simulate_fmu(str(fmu), stop_time=t_end, output_interval=h,
                                                                output=["plant.q"]))
         row["e_container"] = position_error(c["time"], c["plant.q"], truth, q_scale)
     if "libcosim" in engines:
-        from emcosim.libcosim import _simulate as libcosim_here     # in this process: the engine's time only
+        from emcosim.engine.libcosim import _simulate as libcosim_here     # in this process: the engine's time only
         lc, row["t_libcosim"] = timed(lambda: libcosim_here(s, t_end, None, None, ["plant.q"]))
         row["e_libcosim"] = position_error(lc.time, lc["plant.q"], truth, q_scale)
     return row

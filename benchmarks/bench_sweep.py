@@ -28,10 +28,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from emcosim.master import simulate  # noqa: E402
-from emcosim.session import Session  # noqa: E402
-from emcosim.ssd import read_scenario  # noqa: E402
-from emcosim.sweep import _close_on_workers, dask_client, run_all  # noqa: E402
+from emcosim.engine.master import simulate  # noqa: E402
+from emcosim.engine.session import Session  # noqa: E402
+from emcosim.engine.ssd import read_scenario  # noqa: E402
+from emcosim.paper.sweep import _close_on_workers, dask_client, run_all  # noqa: E402
 
 
 def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_time: float) -> dict:
@@ -60,7 +60,7 @@ def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_t
 
 
 def _workers_with_sessions(client) -> int:
-    from emcosim import sweep
+    from emcosim.paper import sweep
     counts = client.run(lambda: len(sweep._sessions))
     return sum(1 for n in counts.values() if n > 0)
 

@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .errors import ScenarioError, SimulationError
+from .engine.errors import ScenarioError, SimulationError
 
 
 def scenario_dirs() -> list[Path]:
@@ -117,14 +117,14 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _read(name: str, fmu_dir: str | None = None):
-    from .ssd import read_scenario
+    from .engine.ssd import read_scenario
     return read_scenario(name, scenario_dirs(), fmu_dir=fmu_dir)
 
 
 def cmd_run(args) -> int:
-    from .master import simulate
+    from .engine.master import simulate
     from .progress import ProgressBar
-    from .results import plot
+    from .engine.results import plot
 
     scenario = _read(args.scenario, args.fmu_dir)
     start_values = {}
@@ -159,7 +159,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from .container import export_container
+    from .engine.container import export_container
 
     scenario = _read(args.scenario, args.fmu_dir)
     export_container(scenario, Path(args.output), step_size=args.step_size)
@@ -170,7 +170,7 @@ def cmd_export(args) -> int:
 def cmd_info(args) -> int:
     from fmpy import read_model_description
 
-    from .ssd import SSD_NAME
+    from .engine.ssd import SSD_NAME
 
     if args.scenario:
         paths = args.scenario
@@ -206,7 +206,7 @@ def cmd_info(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from .reproduce import ensure_fmus, reproduce
+    from .paper.reproduce import ensure_fmus, reproduce
 
     if args.fmu_dir is None:
         ensure_fmus()
@@ -215,8 +215,8 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_certify(args) -> int:
-    from .certify import certify_scenario
-    from .ssd import resolve_path
+    from .paper.certify import certify_scenario
+    from .engine.ssd import resolve_path
 
     path = resolve_path(args.scenario, scenario_dirs())
     try:
@@ -231,8 +231,8 @@ def cmd_certify(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .sweep import parse_grid, parse_sample, sweep
-    from .sweep_output import plot, write_table
+    from .paper.sweep import parse_grid, parse_sample, sweep
+    from .paper.sweep_output import plot, write_table
 
     grid = [parse_grid(g) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]

@@ -99,14 +99,14 @@ def test_inconclusive_when_no_constant_metric_covers_a_large_neighbourhood():
 
 
 def test_measured_decay_rate_of_a_known_signal():
-    from emcosim.studies import measured_decay_rate
+    from emcosim.paper.studies import measured_decay_rate
     t = np.linspace(0, 5, 5001)
     e = np.column_stack([np.exp(-0.7 * t) * np.cos(9 * t), 1e-3 * np.exp(-0.7 * t) * np.sin(9 * t), np.exp(-5 * t)])
     assert measured_decay_rate(t, e, np.array([1.0, 1e-3, 1.0])) == pytest.approx(0.7, rel=0.02)
 
 
 def test_certify_a_scenario_file():
-    from emcosim.certify import certify_scenario
+    from emcosim.paper.certify import certify_scenario
     cert = certify_scenario("scenarios/maglev_tracking_D-1_R0.82")
     assert cert.check("Assumption 4").verdict == HOLDS
     assert cert.check("pH condition (eq. pHcondition)").verdict == FAILS          # D_d != 0 with R_m = 0

@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emcosim import dependencies
+from emcosim.engine import dependencies
 from emcosim.cli import main
-from emcosim.errors import ScenarioError, SimulationError
-from emcosim.master import simulate
+from emcosim.engine.errors import ScenarioError, SimulationError
+from emcosim.engine.master import simulate
 from emcosim.progress import ProgressBar
-from emcosim.results import read_csv
-from emcosim.ssd import (Component, Connection, Connector, Parameter, Scenario, parameter_set_xml,
+from emcosim.engine.results import read_csv
+from emcosim.engine.ssd import (Component, Connection, Connector, Parameter, Scenario, parameter_set_xml,
                          read_scenario, system_structure_xml)
-from emcosim.ssp import pack_ssp
+from emcosim.engine.ssp import pack_ssp
 
 FIXTURES = Path(__file__).parent / "fixtures"
 GAIN = [Connector("x", "input", "Real"), Connector("y", "output", "Real")]
@@ -254,7 +254,7 @@ def test_failure_carries_partial_result(loop):
 def test_libcosim_steps_jacobi_style(loop):
     """libcosim's fixed-step algorithm transfers outputs after the step: x_{n+1} = x_n - h x_{n-1}."""
     pytest.importorskip("libcosimpy")
-    from emcosim.libcosim import simulate_libcosim
+    from emcosim.engine.libcosim import simulate_libcosim
 
     r = simulate_libcosim(read_scenario(loop))
     x = np.empty(101)

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emcosim import paper_scenarios
-from emcosim.master import simulate
-from emcosim.ssd import read_scenario
+from emcosim.paper import scenarios as paper_scenarios
+from emcosim.engine.master import simulate
+from emcosim.engine.ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [c.name for c in paper_scenarios.cases()]
@@ -23,7 +23,7 @@ ACCURACY = 1e-3                 # normalised maximum position error at the defau
 
 
 def test_scenario_files_are_generated_from_components():
-    assert paper_scenarios.stale() == [], "run `python -m emcosim.paper_scenarios` to regenerate scenarios/"
+    assert paper_scenarios.stale() == [], "run `python -m emcosim.paper.scenarios` to regenerate scenarios/"
 
 
 def test_every_paper_case_has_a_scenario():
@@ -69,7 +69,7 @@ def scenario(name: str, fmu_dir: Path):
 @pytest.fixture(scope="session")
 def references():
     """Monolithic references, computed once per (scenario, horizon, grid)."""
-    from emcosim.reference_check import monolithic
+    from emcosim.paper.reference_check import monolithic
     cache = {}
 
     def get(s, t_end, n_samples):
@@ -84,7 +84,7 @@ def references():
 def test_scenario_matches_monolithic_reference(name, fmu_dir, references):
     """Every scenario at its default step: the co-simulation follows the monolithic closed loop of
     the same components within ACCURACY (normalised maximum position error)."""
-    from emcosim.reference_check import position_error, position_scale, samples_for
+    from emcosim.paper.reference_check import position_error, position_scale, samples_for
     s = scenario(name, fmu_dir)
     t_end = short(name)
     result = simulate(s, stop_time=t_end)
@@ -98,7 +98,7 @@ def test_scenario_matches_monolithic_reference(name, fmu_dir, references):
 @pytest.mark.parametrize("name", ["mems_regulation_Dd-1", "maglev_tracking_D-1_R2.82"])
 def test_error_falls_at_first_order(name, fmu_dir, references):
     """The controller's output is held over a communication step: the error is O(h)."""
-    from emcosim.reference_check import position_error, samples_for
+    from emcosim.paper.reference_check import position_error, samples_for
     s = scenario(name, fmu_dir)
     t_end = 4e-4 if name.startswith("mems") else 2.0
     steps = [4 * s.step_size, 2 * s.step_size, s.step_size]
@@ -119,8 +119,8 @@ def test_libcosim_cross_check(name, fmu_dir, references):
     the monolithic reference is then 3 times ours, and the difference between the two engines
     twice ours."""
     pytest.importorskip("libcosimpy")
-    from emcosim.libcosim import simulate_libcosim
-    from emcosim.reference_check import position_error, samples_for
+    from emcosim.engine.libcosim import simulate_libcosim
+    from emcosim.paper.reference_check import position_error, samples_for
     s = scenario(name, fmu_dir)
     t_end = 4e-4 if name.startswith("mems") else 2.0
     ref = references(s, t_end, samples_for(t_end, s.step_size, 1001))
@@ -148,7 +148,7 @@ def test_container_fmu_of_a_scenario(fmu_dir, tmp_path):
     run = subprocess.run([sys.executable, "-m", "fmpy.cli", "simulate", str(fmu), "--stop-time", "0.5",
                           "--output-interval", "0.0005", "--output-file", str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stdout + run.stderr
-    from emcosim.results import read_csv
+    from emcosim.engine.results import read_csv
     container = read_csv(out)
     ours = simulate(scenario(name, fmu_dir), stop_time=0.5, record=["plant.q"])
     np.testing.assert_allclose(container["time"], ours.time, atol=1e-12)
@@ -160,7 +160,7 @@ def test_container_fmu_of_a_scenario(fmu_dir, tmp_path):
 
 def test_cli_runs_a_paper_scenario(fmu_dir, tmp_path, capsys):
     from emcosim.cli import main
-    from emcosim.results import read_csv
+    from emcosim.engine.results import read_csv
     out = tmp_path / "r.csv"
     assert main(["run", "maglev_regulation_prop2", "--stop-time", "0.05", "--fmu-dir", str(fmu_dir),
                  "--set", "controller.D_d=0", "--output", str(out), "--no-progress"]) == 0
@@ -175,7 +175,7 @@ def test_scenarios_run_one_after_another_in_one_process(fmu_dir):
     the process (one interpreter for all pythonfmu FMUs): a second run of the same FMUs must still
     initialize (it once failed checking its bundle against the deleted first copy). A fresh
     process, so that no earlier test has loaded the modules."""
-    code = ("import sys; from emcosim.master import simulate; from emcosim.ssd import read_scenario\n"
+    code = ("import sys; from emcosim.engine.master import simulate; from emcosim.engine.ssd import read_scenario\n"
             "for name in ['mems_regulation_Dd0', 'mems_tracking_Dd0', 'mems_regulation_Dd0']:\n"
             f"    r = simulate(read_scenario({str(ROOT / 'scenarios')!r} + '/' + name, fmu_dir={str(fmu_dir)!r}),"
             " stop_time=2e-5)\n"

@@ -1,4 +1,4 @@
-"""`emcosim sweep` (emcosim.sweep): a sweep gives the same numbers as the same runs made one by one
+"""`emcosim sweep` (emcosim.paper.sweep): a sweep gives the same numbers as the same runs made one by one
 with `emcosim run`; a failing grid point is a row with its error; a real dask scheduler + workers on
 loopback gives the same table as the local cluster; malformed specifications are one-line errors.
 
@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from emcosim import cli
-from emcosim.results import Result, read_csv
-from emcosim.ssd import read_scenario
-from emcosim.sweep import METRICS, metrics_of, parse_grid, parse_sample, points
-from emcosim.sweep_output import read_table
+from emcosim.engine.results import Result, read_csv
+from emcosim.engine.ssd import read_scenario
+from emcosim.paper.sweep import METRICS, metrics_of, parse_grid, parse_sample, points
+from emcosim.paper.sweep_output import read_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = "mems_regulation_Dd0"

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from emcosim.ssd import Component, Connection, Connector, Parameter, Scenario, parameter_set_xml, system_structure_xml
+from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, parameter_set_xml, system_structure_xml
 
 from .harness import ROOT
 

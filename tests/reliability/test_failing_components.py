@@ -10,7 +10,7 @@ import pytest
 
 from .harness import ROOT
 from .scenarios import build_faulty_fmu, emcosim_run, one_line_error, read_csv, real, write_scenario
-from emcosim.ssd import Connector
+from emcosim.engine.ssd import Connector
 
 pytestmark = pytest.mark.reliability
 

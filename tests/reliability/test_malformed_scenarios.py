@@ -17,7 +17,7 @@ from xml.etree import ElementTree as ET
 
 import pytest
 
-from emcosim.ssd import NS
+from emcosim.engine.ssd import NS
 
 from .harness import ROOT
 from .scenarios import one_line_error

@@ -22,7 +22,7 @@ from components import catalog
 from components.monolithic import Result as MonolithicResult
 from components.monolithic import simulate as simulate_monolithic
 
-from .ssd import Scenario
+from ..engine.ssd import Scenario
 
 
 @dataclass

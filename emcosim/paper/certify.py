@@ -15,7 +15,7 @@ from components import catalog, certificates
 from components.controller import Controller
 from components.references import Constant, Reference
 
-from .ssd import Scenario, read_scenario
+from ..engine.ssd import Scenario, read_scenario
 
 
 @dataclass

@@ -10,7 +10,7 @@ N plant draws, so designs are compared on the same plants.
 Engine: Dask. By default a local cluster of worker processes on this machine (one per core, one
 thread each: each process hosts one pythonfmu interpreter); with `--scheduler tcp://HOST:PORT` the
 runs go to a running `dask scheduler` and its workers instead. Each worker thread keeps the FMUs of
-the scenario loaded and resets them between runs (`emcosim.session`). Workers must see the same
+the scenario loaded and resets them between runs (`emcosim.engine.session`). Workers must see the same
 paths as the machine that starts the sweep (scenario, FMUs) and have emcosim installed.
 
 A run that fails (a gain the controller refuses, an FMU error) becomes a row with its error message;
@@ -31,8 +31,8 @@ from typing import Iterator, TextIO
 
 import numpy as np
 
-from .errors import ScenarioError
-from .ssd import Parameter, Scenario, finite_number, read_scenario
+from ..engine.errors import ScenarioError
+from ..engine.ssd import Parameter, Scenario, finite_number, read_scenario
 
 METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
 """The metrics of report.run_metrics put in the table (initial_error is kept too, not plotted)."""
@@ -104,8 +104,8 @@ def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, 
 def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float]) -> dict[str, str]:
     """Check every swept name with the master's own checks (component and variable exist, can be set,
     is Real) and return its unit from the FMU's modelDescription ('' if none)."""
-    from . import master
-    from .session import check_start_values
+    from ..engine import master
+    from ..engine.session import check_start_values
 
     check_start_values(scenario, {n: example[n] for n in names})
     instances = master.load(scenario)
@@ -128,7 +128,7 @@ _lock = threading.Lock()
 
 def _session(ssd: str, fmu_dir: str | None):
     """This thread's (scenario, Session): the FMUs loaded once, reused for every later run."""
-    from .session import Session
+    from ..engine.session import Session
 
     key = (threading.get_ident(), ssd, fmu_dir)
     with _lock:

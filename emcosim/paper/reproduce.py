@@ -18,13 +18,13 @@ import numpy as np
 
 from . import report
 from .certify import design_from_scenario
-from .errors import ScenarioError, SimulationError
-from .master import simulate
-from .progress import ProgressBar
-from .results import Result
-from .ssd import read_scenario
+from ..engine.errors import ScenarioError, SimulationError
+from ..engine.master import simulate
+from ..progress import ProgressBar
+from ..engine.results import Result
+from ..engine.ssd import read_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "scenarios"
 
 PAPER_CASES = {                       # role in the claims report -> scenario name

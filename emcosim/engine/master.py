@@ -101,7 +101,7 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
              start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
              progress: Callable[[float], None] | None = None, tolerance: float | None = None,
              timing: dict | None = None) -> Result:
-    """Run `scenario` and return the recorded values at every communication point.
+    """Run `scenario` once and return the recorded values at every communication point.
 
     start_values: "component.variable" -> value (text or number), overriding the .ssv values.
     record: full variable names to record; default: every connector of the scenario.
@@ -116,6 +116,15 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
     Raises ScenarioError for a scenario that cannot run, SimulationError (with `.result`, the
     values recorded so far) for an FMU that fails during the run.
     """
+    experiment(scenario, stop_time, step_size)                  # refuse a bad horizon before loading
+    with Simulation(scenario) as simulation:
+        return simulation.run(stop_time=stop_time, step_size=step_size, start_values=start_values,
+                              record=record, progress=progress, tolerance=tolerance, timing=timing)
+
+
+def experiment(scenario: Scenario, stop_time: float | None, step_size: float | None) -> tuple[float, float, float]:
+    """(start time, stop time, step size) of a run: the scenario's, overridden by the arguments;
+    a ScenarioError if they do not make a run."""
     t0 = scenario.start_time
     t_stop = scenario.stop_time if stop_time is None else stop_time
     h = scenario.step_size if step_size is None else step_size
@@ -125,20 +134,74 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         raise ScenarioError(f"{scenario.path}: stop time {t_stop} must be after the start time {t0}")
     if not (math.isfinite(h) and h > 0):
         raise ScenarioError(f"{scenario.path}: step size {h} must be positive")
-    instances = load(scenario)
-    connections = check_connections(scenario, instances)
-    parameters = parameter_values(scenario, instances, start_values or {})
-    workdirs = []
-    try:
-        for inst in instances.values():
-            _instantiate(inst, workdirs)
-        plan = _plan(scenario, instances, connections, record)
+    return t0, t_stop, h
+
+
+class Simulation:
+    """One scenario's FMUs, unpacked and instantiated once; `run` as often as needed.
+
+    Between runs every FMU is reset with fmi2Reset (it returns to its freshly instantiated state);
+    if an FMU refuses the reset (e.g. after a fatal error), all are freed and instantiated again.
+    `call` runs the instantiation (default: directly); a caller whose FMUs must be instantiated on a
+    particular thread passes a function that does that (see `session.on_main_thread`).
+    Not thread-safe: one Simulation per thread.
+    """
+
+    def __init__(self, scenario: Scenario, call: Callable[[Callable[[], None]], None] | None = None):
+        self.scenario = scenario
+        self.runs = 0                         # runs made with the current instances
+        self.instantiations = 0               # how often the FMUs were instantiated (1 unless a reset failed)
+        self._call = call or (lambda fn: fn())
+        self._workdirs: list[str] = []
+        self._plans: dict = {}
+        self.instances = load(scenario)
+        self.connections = check_connections(scenario, self.instances)
+        try:
+            self._instantiate()
+        except BaseException:
+            self.close()
+            raise
+
+    def _instantiate(self) -> None:
+        def instantiate_all() -> None:
+            for inst in self.instances.values():
+                _instantiate(inst, self._workdirs)
+        self._call(instantiate_all)
+        self.instantiations += 1
+        self._plans.clear()                   # plans hold the instances' C handles
+        self.runs = 0
+
+    def _reset(self) -> None:
+        try:
+            for inst in self.instances.values():
+                inst.slave.reset()
+                inst.messages.clear()
+        except Exception:                     # noqa: BLE001 - any failure: start from scratch
+            for inst in self.instances.values():
+                _free(inst)
+                inst.messages.clear()
+            self._instantiate()
+
+    def run(self, stop_time: float | None = None, step_size: float | None = None,
+            start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
+            progress: Callable[[float], None] | None = None, tolerance: float | None = None,
+            timing: dict | None = None) -> Result:
+        """Run the scenario once; the arguments and errors are those of `simulate`."""
+        t0, t_stop, h = experiment(self.scenario, stop_time, step_size)
+        parameters = parameter_values(self.scenario, self.instances, start_values or {})
+        if self.runs > 0:
+            self._reset()
+        self.runs += 1
+        key = None if record is None else tuple(record)
+        if key not in self._plans:
+            self._plans[key] = _plan(self.scenario, self.instances, self.connections, record)
+        plan = self._plans[key]
         result = Result(plan.columns)
         slots = [0.0] * _n_slots(plan)
         tic = time.perf_counter()
-        stepper = _Stepper(scenario, instances, plan, slots)
-        _initialize(scenario, instances, parameters, t0, t_stop, stepper)
-        result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}" for name, inst in instances.items()
+        stepper = _Stepper(self.scenario, self.instances, plan, slots)
+        _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
+        result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}" for name, inst in self.instances.items()
                            for m in inst.messages if m.startswith("[warning]")]
         if tolerance is None:
             _run_fixed(stepper, result, t0, t_stop, h, progress)
@@ -147,15 +210,24 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         if timing is not None:
             total = time.perf_counter() - tic
             fmu = stepper.fmu_time()
-            timing.update(total=total, fmu=fmu, steps=stepper.n_steps, fmus=len(instances),
+            timing.update(total=total, fmu=fmu, steps=stepper.n_steps, fmus=len(self.instances),
                           per_fmu=stepper.fmu_times(),
-                          overhead_per_fmu_step=(total - fmu) / max(1, stepper.n_steps * len(instances)))
+                          overhead_per_fmu_step=(total - fmu) / max(1, stepper.n_steps * len(self.instances)))
         return result
-    finally:
-        for inst in instances.values():
+
+    def close(self) -> None:
+        """Free the FMU instances and delete their unpacked files."""
+        for inst in self.instances.values():
             _free(inst)
-        for d in workdirs:
+        for d in self._workdirs:
             shutil.rmtree(d, ignore_errors=True)
+        self._workdirs.clear()
+
+    def __enter__(self) -> "Simulation":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 # ---- loading and checking -------------------------------------------------------------------------

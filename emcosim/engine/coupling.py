@@ -1,0 +1,200 @@
+"""Higher-order coupling: input interpolation with the output derivatives of FMI 2.0 co-simulation.
+
+With a zero-order hold the master sets an input's value at t_n and the FMU holds it over the step
+[t_n, t_n + h]: the coupling error of a step is O(h) and the global error O(h). FMI 2.0 lets a source
+FMU give the time derivatives of an output at the communication point (`maxOutputDerivativeOrder`,
+fmi2GetRealOutputDerivatives) and a target FMU accept derivatives of an input
+(`canInterpolateInputs`, fmi2SetRealInputDerivatives), which it uses as the Taylor polynomial
+u(t_n + s) = sum_j u^(j)(t_n) s^j / j! over the step. With derivatives up to order K on every
+connection the coupling error of a step is O(h^(K+1)) and the global error O(h^(K+1)).
+
+Order of a connection (`connection_orders`): the order the source can give (its
+maxOutputDerivativeOrder; for an output with direct feedthrough also no more than the orders on the
+inputs it depends on, since its derivatives follow from theirs by the chain rule), 0 unless the
+target declares canInterpolateInputs, and no more than the order asked for (`coupling_order`;
+default: all both ends offer, up to MAX_ORDER). FMUs that declare nothing are coupled with a
+zero-order hold, exactly as without this module.
+
+Order of the calls at a communication point (`DerivativePlan`): the values first, level by level
+(master.py); then the derivatives order by order, k = 1..K, and within each order level by level,
+in the same dependency order as the values: a state's k-th derivative depends on the input's value
+and derivatives below k (all set before), a feedthrough output's k-th derivative on its inputs' k-th
+derivatives (set earlier in the same pass, from lower levels). So plant -> controller -> plant
+chains get their derivatives like their values: the controller's du/dt is read after the plant's
+and the reference's output derivatives have been set on its inputs. Sources without inputs give all
+their orders in one call. A linear transformation y -> factor * y + offset on a connection scales
+every derivative by the factor. The calls are raw ctypes calls on preallocated arrays (as the value
+transfers of master.py).
+"""
+from __future__ import annotations
+
+import ctypes
+import time
+from dataclasses import dataclass
+
+from fmpy.fmi1 import FMICallException
+
+from .errors import ScenarioError
+
+MAX_ORDER = 3            # the highest order the master passes when no order is asked for
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What an FMU declares for higher-order coupling (modelDescription.xml, CoSimulation)."""
+
+    interpolates_inputs: bool     # canInterpolateInputs
+    output_order: int             # maxOutputDerivativeOrder
+
+
+def capabilities(model_description) -> Capabilities:
+    cs = model_description.coSimulation
+    return Capabilities(bool(cs.canInterpolateInputs), max(0, int(cs.maxOutputDerivativeOrder or 0)))
+
+
+def connection_orders(instances: dict, connections, level: dict[str, int], depends: dict[str, set[str]],
+                      requested: int | None = None) -> dict[str, int]:
+    """Derivative order of every connection, by its input's full name (module docstring).
+
+    level: full output name -> dependency level (dependencies.levels); depends: full output name ->
+    full input names it depends on (direct feedthrough). requested: the order asked for (None: as
+    high as both ends allow, up to MAX_ORDER); a ScenarioError if it is not 0..MAX_ORDER."""
+    if requested is not None and not (isinstance(requested, int) and 0 <= requested <= MAX_ORDER):
+        raise ScenarioError(f"coupling order {requested!r} must be an integer from 0 to {MAX_ORDER}")
+    cap = MAX_ORDER if requested is None else requested
+    caps = {name: capabilities(inst.model_description) for name, inst in instances.items()}
+    order_of: dict[str, int] = {}                      # input full name -> order
+    available: dict[str, int] = {}                     # output full name -> order it can give
+    for out in sorted(level, key=level.get):
+        comp = out.partition(".")[0]
+        n = caps[comp].output_order
+        for inp in depends.get(out, ()):
+            if inp in order_of:
+                n = min(n, order_of[inp])
+        available[out] = n
+        for c in connections:
+            if c.start == out:
+                target = caps[c.end_element]
+                order_of[c.end] = min(n, cap) if target.interpolates_inputs else 0
+    return order_of
+
+
+class _DerivativeTransfer:
+    """fmi2GetRealOutputDerivatives / fmi2SetRealInputDerivatives of a batch of (variable, order)
+    of one FMU, on preallocated arrays."""
+
+    def __init__(self, inst, entries: list[tuple[str, int]], getter: bool):
+        self.inst = inst
+        self.entries = entries                                    # [(variable name, order)]
+        n = len(entries)
+        self.vr = (ctypes.c_uint * n)(*[inst.variables[v].valueReference for v, _ in entries])
+        self.order = (ctypes.c_int * n)(*[k for _, k in entries])
+        self.values = (ctypes.c_double * n)()
+        self.function = "fmi2GetRealOutputDerivatives" if getter else "fmi2SetRealInputDerivatives"
+        self.call = inst.slave._functions[self.function]
+        self.n = n
+        self.elapsed = 0.0
+        self.slots: list[int] = []                                # derivative slots, one per entry
+
+    def __call__(self) -> None:
+        tic = time.perf_counter()
+        status = self.call(self.inst.slave.component, self.vr, self.n, self.order, self.values)
+        self.elapsed += time.perf_counter() - tic
+        if status > 1:
+            raise FMICallException(self.function, status)
+
+
+@dataclass
+class DerivativePlan:
+    """The derivative transfers of a communication point, and where their values are kept.
+
+    passes: per order k = 1..K, per level: (gets, sets); a get is a _DerivativeTransfer, a set is
+        (_DerivativeTransfer, [(source slot, factor)]).
+    slot: (full name, order) -> index into `values` (outputs and connected inputs).
+    orders: input full name -> coupling order.
+    """
+
+    passes: list
+    slot: dict[tuple[str, int], int]
+    orders: dict[str, int]
+    values: list[float]
+
+    @property
+    def max_order(self) -> int:
+        return max(self.orders.values(), default=0)
+
+    def transfers(self) -> list[_DerivativeTransfer]:
+        return [t for levels in self.passes for gets, sets in levels for t in gets + [s for s, _ in sets]]
+
+    def resolve(self):
+        """Get and set every derivative of the current communication point (after the values).
+        Returns None, or (the transfer that failed, its FMICallException)."""
+        values = self.values
+        try:
+            for levels in self.passes:
+                for gets, sets in levels:
+                    for transfer in gets:
+                        transfer()
+                        got = transfer.values
+                        for i, s in enumerate(transfer.slots):
+                            values[s] = got[i]
+                    for transfer, sources in sets:
+                        out = transfer.values
+                        for i, (src, factor) in enumerate(sources):
+                            v = values[src] * factor
+                            out[i] = v
+                            values[transfer.slots[i]] = v
+                        transfer()
+        except FMICallException as exc:
+            return transfer, exc
+        return None
+
+    def polynomial(self, full: str) -> list[int]:
+        """Slots of the derivatives 1..order of an input, in order (empty for a zero-order hold)."""
+        return [self.slot[(full, k)] for k in range(1, self.orders.get(full, 0) + 1)]
+
+
+def plan_derivatives(instances: dict, connections, level: dict[str, int], orders: dict[str, int]) -> DerivativePlan:
+    """The derivative transfers for the connection orders `orders` (see connection_orders)."""
+    slot: dict[tuple[str, int], int] = {}
+
+    def slot_of(key: tuple[str, int]) -> int:
+        return slot.setdefault(key, len(slot))
+
+    K = max(orders.values(), default=0)
+    fed = {c.end_element for c in connections}
+    sources = {name for name in instances if name not in fed}      # FMUs without connected inputs
+    need: dict[str, int] = {}                                      # output -> highest order needed
+    for c in connections:
+        if orders[c.end] > 0:
+            need[c.start] = max(need.get(c.start, 0), orders[c.end])
+    n_levels = max(level.values(), default=-1) + 1
+    passes = []
+    for k in range(1, K + 1):
+        levels = []
+        for lv in range(n_levels):
+            gets = []
+            by_comp: dict[str, list[tuple[str, int]]] = {}
+            for out in sorted(o for o in need if level[o] == lv):
+                comp, _, var = out.partition(".")
+                if comp in sources:
+                    if k == 1:                                     # a source: every order at once
+                        by_comp.setdefault(comp, []).extend((var, j) for j in range(1, need[out] + 1))
+                elif need[out] >= k:
+                    by_comp.setdefault(comp, []).append((var, k))
+            for comp, entries in by_comp.items():
+                t = _DerivativeTransfer(instances[comp], entries, getter=True)
+                t.slots = [slot_of((f"{comp}.{v}", j)) for v, j in entries]
+                gets.append(t)
+            sets = []
+            targets: dict[str, list] = {}
+            for c in connections:
+                if level[c.start] == lv and orders[c.end] >= k:
+                    targets.setdefault(c.end_element, []).append(c)
+            for comp, conns in targets.items():
+                t = _DerivativeTransfer(instances[comp], [(c.end_connector, k) for c in conns], getter=False)
+                t.slots = [slot_of((c.end, k)) for c in conns]
+                sets.append((t, [(slot_of((c.start, k)), c.factor) for c in conns]))
+            levels.append((gets, sets))
+        passes.append(levels)
+    return DerivativePlan(passes, slot, dict(orders), [0.0] * len(slot))

@@ -524,9 +524,21 @@ def test_build_is_reproducible_and_skips_when_unchanged(fmus, tmp_path, capsys):
     build.build(tmp_path)
     assert "up to date" in capsys.readouterr().out
     assert {i: p.stat().st_mtime_ns for i, p in again.items()} == mtimes
-    with zipfile.ZipFile(again["MEMS"]) as z:
-        names = z.namelist()
-    assert "resources/components/plant_step.py" in names and "resources/fmu_MEMS.py" in names
+    package = build.package_name(build.fingerprint())
+    for identifier, path in again.items():
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+            script = z.read("resources/slavemodule.txt").decode()
+        assert script == f"{package}_{identifier}" and f"resources/{script}.py" in names
+        assert {f"resources/{package}/components/plant_step.py", f"resources/{package}/em_fmu_framework.py",
+                f"resources/{package}/pythonfmu/fmi2slave.py", "resources/emcosim_fmu.txt"} <= set(names)
+        # one platform, whose binaries are the loader and pythonfmu's library: no win64 binary that the
+        # modelDescription's claims would not hold for
+        assert sorted(n for n in names if n.startswith("binaries/")) == [
+            f"binaries/linux64/{identifier}.so", "binaries/linux64/libpythonfmu-export.so"]
+        # no module outside the build's own names (all Python FMUs of a process share sys.modules)
+        top = {n.split("/")[1].removesuffix(".py") for n in names if n.startswith("resources/")}
+        assert top == {package, script, "emcosim_fmu.txt", "slavemodule.txt"}, top
 
 
 def test_docs_tables_match_the_fmus(fmus):

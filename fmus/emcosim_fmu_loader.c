@@ -104,6 +104,7 @@ typedef struct {
     char executable[PATH_MAX];               /* the Python interpreter (sys.executable) */
     char library[PATH_MAX];                  /* its libpython */
     char version[32];                        /* its version, "3.11.7" */
+    char minor[16];                          /* "3.11": any 3.11.x can replace it */
     char package[128];                       /* the FMU's bundle package, emcosim_fmu_<tag> */
     char script[160];                        /* the script pythonfmu runs, emcosim_fmu_<tag>_<id> */
     char build[80];                          /* the build fingerprint (the package's BUILD) */
@@ -121,14 +122,20 @@ static const char *category(fmi2Status status)
 static void log_to_host(const fmi2CallbackFunctions *callbacks, const char *instance, fmi2Status status,
                         const char *format, ...)
 {
-    char message[MESSAGE_SIZE];
+    char message[MESSAGE_SIZE], escaped[2 * MESSAGE_SIZE];
     va_list args;
     va_start(args, format);
     vsnprintf(message, sizeof message, format, args);
     va_end(args);
+    /* the logger's message is a printf format (FMI 2.0); hosts that do not format it (fmpy) show it as is */
+    size_t n = 0;
+    for (const char *p = message; *p; p++) {
+        if (*p == '%') escaped[n++] = '%';
+        escaped[n++] = *p;
+    }
+    escaped[n] = '\0';
     if (callbacks != NULL && callbacks->logger != NULL)
-        callbacks->logger(callbacks->componentEnvironment, instance ? instance : "", status, category(status),
-                          "%s", message);
+        callbacks->logger(callbacks->componentEnvironment, instance ? instance : "", status, category(status), escaped);
     else
         fprintf(stderr, "[%s] %s\n", instance ? instance : "", message);
 }
@@ -167,6 +174,9 @@ static int read_record(const char *resources, Record *record, char *error)
         else if (strcmp(key, "multiarch") == 0) copy_string(record->multiarch, sizeof record->multiarch, value);
     }
     fclose(f);
+    int major = 0, minor = 0;
+    sscanf(record->version, "%d.%d", &major, &minor);
+    snprintf(record->minor, sizeof record->minor, "%d.%d", major, minor);
     if (!record->executable[0] || !record->library[0] || !record->package[0] || !record->script[0] ||
         !record->build[0]) {
         snprintf(error, MESSAGE_SIZE, "%s lacks python_executable, python_library, package, script or build", path);
@@ -211,9 +221,7 @@ static int find_libpython(const char *executable, const Record *record, char *li
 {
     char real[PATH_MAX], bin[PATH_MAX * 2], line[PATH_MAX + 16];
     char name[64];
-    int major = 0, minor = 0;
-    sscanf(record->version, "%d.%d", &major, &minor);
-    snprintf(name, sizeof name, "libpython%d.%d.so.1.0", major, minor);
+    snprintf(name, sizeof name, "libpython%s.so.1.0", record->minor);
     const char *bins[2] = {NULL, NULL};
     if (realpath(executable, real) != NULL) {
         char *slash = strrchr(real, '/');
@@ -281,11 +289,11 @@ static int start_python(const Record *record, char *error)
     char library[PATH_MAX];
     const char *hint = "set " OVERRIDE_VARIABLE " to a Python %s executable whose environment has numpy and scipy";
     char want[160];
-    snprintf(want, sizeof want, hint, record->version);
+    snprintf(want, sizeof want, hint, record->minor);
 
     if (access(executable, X_OK) != 0) {
         snprintf(error, MESSAGE_SIZE, "this FMU needs Python %s with numpy and scipy: the interpreter %s (%s) "
-                 "does not exist or is not executable; %s", record->version, executable, source, want);
+                 "does not exist or is not executable; %s", record->minor, executable, source, want);
         return -1;
     }
     void *handle = dlsym(RTLD_DEFAULT, "Py_IsInitialized");
@@ -295,8 +303,8 @@ static int start_python(const Record *record, char *error)
         if (override && override[0]) {
             if (find_libpython(executable, record, library, sizeof library) != 0) {
                 snprintf(error, MESSAGE_SIZE, "this FMU needs Python %s with numpy and scipy: no shared library "
-                         "libpython%.4s.so.1.0 found for the interpreter %s (%s) in lib/ beside its bin/ folder; %s",
-                         record->version, record->version, executable, source, want);
+                         "libpython%s.so.1.0 found for the interpreter %s (%s) in lib/ beside its bin/ folder; %s",
+                         record->minor, record->minor, executable, source, want);
                 return -1;
             }
         } else {
@@ -305,7 +313,7 @@ static int start_python(const Record *record, char *error)
         handle = dlopen(library, RTLD_NOW | RTLD_GLOBAL);
         if (handle == NULL) {
             snprintf(error, MESSAGE_SIZE, "this FMU needs Python %s with numpy and scipy: cannot load its library "
-                     "(%s); %s", record->version, dlerror(), want);
+                     "(%s); %s", record->minor, dlerror(), want);
             return -1;
         }
     }
@@ -386,7 +394,7 @@ static int check_environment(const Record *record, int started, char *error)
             if (started)
                 snprintf(error, MESSAGE_SIZE, "the Python %s cannot import %s (%s); set " OVERRIDE_VARIABLE " to a "
                          "Python %s executable whose environment has numpy and scipy, and restart the host",
-                         override && override[0] ? override : record->executable, needed[i], text, record->version);
+                         override && override[0] ? override : record->executable, needed[i], text, record->minor);
             else
                 snprintf(error, MESSAGE_SIZE, "the host's Python cannot import %s (%s): install numpy and scipy "
                          "in the environment of the host process", needed[i], text);

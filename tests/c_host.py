@@ -12,6 +12,18 @@ from fmpy import read_model_description
 
 SOURCE = Path(__file__).parent / "fixtures" / "c_host.c"
 LOOP_SOURCE = Path(__file__).parent / "fixtures" / "c_loop.c"
+CALLS_SOURCE = Path(__file__).parent / "fixtures" / "c_calls.c"
+TOYS = Path(__file__).parent / "fixtures" / "emcosim_toy_derivatives.py"
+_TOYS: dict[str, Path] = {}
+
+
+def toy_fmus(folder: Path) -> dict[str, Path]:
+    """The FMUs of tests/fixtures/emcosim_toy_derivatives.py (known derivatives), built once per test
+    session with build.build_fmus into `folder` (the first caller's)."""
+    if not _TOYS:
+        import build
+        _TOYS.update(build.build_fmus({"DerivativeIntegrator": TOYS, "DerivativeGain": TOYS}, folder))
+    return dict(_TOYS)
 
 
 def compile_c_host(exe: Path, source: Path = SOURCE) -> str | None:
@@ -72,6 +84,26 @@ def run_loop_in_c_host(exe: Path, plant_fmu: Path, controller_fmu: Path, workdir
         vrs.append(vr)
     args += [repr(h), str(n)] + [str(vrs[0][k]) for k in ("u", "q", "p", "x_e")] + [str(vrs[1][k]) for k in ("q", "p", "x_e", "u")]
     return _run(args)
+
+
+def run_calls(exe: Path, folder: Path, calls: list[str], env: dict[str, str] | None = None
+              ) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
+    """Run the C host of tests/fixtures/c_calls.c on an extracted FMU (`folder`, see `extract`) with an
+    empty environment plus `env`; returns the process and its output lines split into words."""
+    md = read_model_description(str(folder / "modelDescription.xml"))
+    identifier = md.coSimulation.modelIdentifier
+    args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
+            (folder / "resources").as_uri(), md.guid, *calls]
+    env = dict(env or {})
+    run = subprocess.run(["env", "-i", *(f"{k}={v}" for k, v in env.items()), *args], capture_output=True,
+                         text=True, timeout=300)
+    return run, [line.split() for line in run.stdout.splitlines()]
+
+
+def extract(fmu: Path, workdir: Path) -> tuple[Path, dict[str, int]]:
+    """Unzip an FMU into workdir/<model identifier>; (folder, variable name -> value reference)."""
+    _, folder, vr = _extracted(fmu, workdir)
+    return folder, vr
 
 
 def last_inputs(start: dict[str, float], n: int) -> list[float]:

@@ -14,6 +14,8 @@
   loggingOn, so errors are also echoed to stderr.
 - pythonfmu 0.7.0 also releases the script module's namespace once per fmi2Instantiate; every FMU
   script calls `hold_script_globals(globals())` so that a second instance does not crash the host.
+  (Its exit-time heap corruption is worked around by the loader, which registers the library's
+  finalizePythonInterpreter as an exit handler.)
 - FMI 2.0 derivatives: pythonfmu 0.7.0 does not implement fmi2SetRealInputDerivatives,
   fmi2GetRealOutputDerivatives and fmi2GetDirectionalDerivative; the FMU's binary (the loader,
   emcosim_fmu_loader.c) answers them by calling the `fmi2_*` methods below on the slave it takes with
@@ -34,7 +36,6 @@ import sys
 import threading
 import uuid
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, ClassVar
 from xml.etree.ElementTree import Element, SubElement, tostring
 
@@ -82,9 +83,6 @@ REFERENCE_JET = (("q_star", "m", "reference position q*"),
 # FMI 2.0 status codes returned by the fmi2_* methods to the loader
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
 
-# pythonfmu's export library, beside the loader in binaries/linux64 (build.py, emcosim_fmu_loader.c)
-PYTHONFMU_LIBRARY = "libpythonfmu-export.so"
-
 
 @dataclass
 class Variable:
@@ -116,45 +114,6 @@ def hold_script_globals(namespace: dict) -> None:
     the re-executions are balanced, the first import keeps one (the module lives for the process)."""
     if PYTHONFMU_VERSION in REFCOUNT_COMPENSATED_VERSIONS:
         ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
-
-
-# pythonfmu versions whose export library was measured to need `finalize_python_at_exit`
-EXIT_HOOK_VERSIONS = {"0.7.0"}
-_EXIT_HOOKS: dict[str, ctypes.CDLL] = {}
-
-
-def finalize_python_at_exit(resources: str, model_identifier: str) -> None:
-    """Have the C runtime release this FMU library's interpreter state first thing at process exit.
-
-    pythonfmu 0.7.0 keeps its interpreter state (`PyState`: the embedded interpreter when the host is
-    not Python) in a global shared_ptr and releases it only from C++ static and ELF destructors, which
-    glibc runs at exit after the exit handlers of every library loaded later (numpy's OpenBLAS and
-    libgfortran), and in an order that resets the already destroyed pointer (docs/reliability.md,
-    finding 1). Measured: a Python host aborted at exit in about 1 of 3 processes ("corrupted
-    double-linked list"), a C host crashed in Py_Finalize in most. Registering the library's own
-    `finalizePythonInterpreter` with __cxa_atexit once it is loaded (numpy is imported by then, so
-    this handler runs before numpy's) releases the state while everything it needs is intact; the
-    destructors then find an empty pointer. The library is never unloaded before exit anyway
-    (glibc marks it NODELETE: it defines unique symbols); the handle kept here makes sure of it."""
-    if not resources or PYTHONFMU_VERSION not in EXIT_HOOK_VERSIONS or not sys.platform.startswith("linux"):
-        return
-    binary = Path(resources).parent / "binaries" / "linux64" / PYTHONFMU_LIBRARY
-    if not binary.is_file():                                 # e.g. the class instantiated by the builder
-        return
-    key = str(binary.resolve())
-    if key in _EXIT_HOOKS:
-        return
-    try:
-        library = ctypes.CDLL(key)                          # the already loaded library: same handle
-        libc = ctypes.CDLL(None)
-        libc.__cxa_atexit.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
-        if libc.__cxa_atexit(ctypes.cast(library.finalizePythonInterpreter, ctypes.c_void_p), None, None) != 0:
-            raise OSError("__cxa_atexit refused the handler")
-    except (OSError, AttributeError) as exc:
-        print(f"[{model_identifier}] warning: exit handler not registered ({exc}); the host may crash at exit",
-              file=sys.stderr, flush=True)
-        return
-    _EXIT_HOOKS[key] = library
 
 
 _PINNED_THREADS: set[int] = set()
@@ -226,7 +185,6 @@ class EMSlave(Fmi2Slave):
         self.time = 0.0
         self.input_derivatives: dict[str, dict[int, float]] = {}     # input name -> {order: value}
         self.declare()
-        finalize_python_at_exit(self.resources, self.model_identifier)
         keep_thread_state()
         _NEW_SLAVES[threading.get_ident()] = self
 

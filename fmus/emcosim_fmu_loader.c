@@ -85,7 +85,10 @@ static struct {
 #define DECLARE(name) name##TYPE *name;
     FORWARDED(DECLARE)
 #undef DECLARE
+    void (*finalizePythonInterpreter)(void);
 } lib;
+
+extern int __cxa_atexit(void (*function)(void *), void *argument, void *dso_handle);
 
 /* ---- state of this library (one per FMU: every FMU ships its own copy) ------------------------------ */
 static pthread_mutex_t setup_lock = PTHREAD_MUTEX_INITIALIZER;
@@ -379,8 +382,26 @@ static int check_module_build(const char *name, const char *build, char *error)
     return ours ? 0 : -1;
 }
 
+/* If the bundle package is loaded already (another FMU of this build), let it also find modules in this
+ * FMU's copy (package.add_folder, written by build.py): the first FMU's folder may be gone. GIL held. */
+static int add_folder(const char *package, const char *resources)
+{
+    char folder[PATH_MAX + 160];
+    snprintf(folder, sizeof folder, "%s/%s", resources, package);
+    PyObject *key = py.PyUnicode_FromString(package);
+    PyObject *module = key ? py.PyImport_GetModule(key) : NULL;
+    PyObject *add = module ? py.PyObject_GetAttrString(module, "add_folder") : NULL;
+    PyObject *argument = add ? py.PyUnicode_FromString(folder) : NULL;
+    PyObject *result = argument ? py.PyObject_CallFunctionObjArgs(add, argument, NULL) : NULL;
+    int failed = py.PyErr_Occurred() != NULL || (module != NULL && result == NULL);
+    PyObject *objects[] = {key, module, add, argument, result};
+    for (int i = 0; i < 5; i++)
+        if (objects[i]) py.Py_DecRef(objects[i]);
+    return failed ? -1 : 0;
+}
+
 /* numpy and scipy import, and no module of this FMU's names is another build's. */
-static int check_environment(const Record *record, int started, char *error)
+static int check_environment(const Record *record, const char *resources, int started, char *error)
 {
     char text[MESSAGE_SIZE];
     int failed = 0;
@@ -406,6 +427,11 @@ static int check_environment(const Record *record, int started, char *error)
     const char *names[] = {record->package, record->script};
     for (int i = 0; i < 2 && !failed; i++) {
         failed = check_module_build(names[i], record->build, error);
+    }
+    if (!failed && add_folder(record->package, resources) != 0) {
+        python_error_text(text, sizeof text);
+        snprintf(error, MESSAGE_SIZE, "%s.add_folder failed: %s", record->package, text);
+        failed = 1;
     }
     py.PyGILState_Release(gil);
     return failed ? -1 : 0;
@@ -435,12 +461,25 @@ static int load_pythonfmu(char *error)
     }
     FORWARDED(BIND)
 #undef BIND
+    /* pythonfmu 0.7.0 keeps its interpreter state in a global shared_ptr that both its C++ static destructor
+     * and its ELF destructor reset at exit, the second after the first has freed it: the heap was corrupted
+     * at the exit of about 1 process in 3 (docs/reliability.md, finding 1; measured again with a plain
+     * pythonfmu slave behind this loader: "free(): corrupted unsorted chunks" at every exit). An exit
+     * handler registered now, after the library's own, runs first and releases the state while it is
+     * intact; the destructors then find it empty. The library is never unloaded (glibc marks it NODELETE:
+     * it defines unique symbols), so the handler stays valid even if the host unloads this library. */
+    lib.finalizePythonInterpreter = (void (*)(void))dlsym(handle, "finalizePythonInterpreter");
+    if (lib.finalizePythonInterpreter == NULL ||
+        __cxa_atexit((void (*)(void *))(void (*)(void))lib.finalizePythonInterpreter, NULL, NULL) != 0) {
+        snprintf(error, MESSAGE_SIZE, "cannot register pythonfmu's exit handler (finalizePythonInterpreter)");
+        return -1;
+    }
     return 0;
 }
 
 /* Python running, the environment checked, pythonfmu loaded: once per process and FMU binary, except the
  * checks (per instance: another FMU may have loaded something in between). */
-static int set_up(const Record *record, char *error)
+static int set_up(const Record *record, const char *resources, char *error)
 {
     pthread_mutex_lock(&setup_lock);
     int started = 0;
@@ -460,7 +499,7 @@ static int set_up(const Record *record, char *error)
         copy_string(error, MESSAGE_SIZE, setup_error);
         return -1;
     }
-    return check_environment(record, started, error);
+    return check_environment(record, resources, started, error);
 }
 
 /* ---- the Python slave of an instance ------------------------------------------------------------------ */
@@ -507,7 +546,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                     "of the FMU's resources folder", fmuResourceLocation ? fmuResourceLocation : "(NULL)");
         return NULL;
     }
-    if (read_record(resources, &record, error) != 0 || set_up(&record, error) != 0) {
+    if (read_record(resources, &record, error) != 0 || set_up(&record, resources, error) != 0) {
         log_to_host(functions, instanceName, fmi2Error, "fmi2Instantiate: %s", error);
         return NULL;
     }

@@ -5,10 +5,10 @@ equal components/ for the same inputs, and the host process exits with status 0.
 functions, the recorded Python (moved away: one message; EMCOSIM_FMU_PYTHON) and the loader's binary
 are checked here too.
 
-Before `em_fmu_framework.finalize_python_at_exit`, most C-host processes crashed at exit (SIGSEGV in
-Py_Finalize, which pythonfmu 0.7.0 ran after numpy's libraries had shut down; docs/reliability.md,
-finding 1): 10 of 12 runs of MEMS_Proposition1 here. Each FMU runs twice, once with dlclose
-before exit, once without.
+Before the exit handler the loader registers (pythonfmu's finalizePythonInterpreter, registered right
+after its library is loaded), most C-host processes crashed at exit (SIGSEGV in Py_Finalize, which
+pythonfmu 0.7.0 ran after numpy's libraries had shut down; docs/reliability.md, finding 1): 10 of 12
+runs of MEMS_Proposition1 here. Each controller runs twice, once with dlclose before exit, once without.
 """
 from __future__ import annotations
 

@@ -581,6 +581,17 @@ def test_foreign_fmu_named_like_ours_loaded_first_does_not_disturb_ours(fmus, tm
     assert both[0]["output"] == 2.0 * 1e-6 and both[1]["output"] == alone[0]["output"]
 
 
+def test_fmus_of_one_build_share_their_bundle_after_the_first_folder_is_gone(fmus):
+    """FMUs of one build share one bundle package in a process. fmpy's simulate deletes an FMU's unzip
+    folder after the run; the next FMU of the build finds the modules not imported yet in its own copy."""
+    code = ("import sys\nfrom fmpy import simulate_fmu\n"
+            "for path in sys.argv[1:]:\n    print(len(simulate_fmu(path, stop_time=0.01, output_interval=1e-3)))\n")
+    run = subprocess.run([sys.executable, "-c", code, str(fmus["MEMS"]), str(fmus["Reference"]),
+                          str(fmus["Maglev_Theorem3"])], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-1500:]
+    assert run.stdout.split() == ["11", "11", "11"]
+
+
 def test_module_of_our_name_loaded_by_another_fmu_is_refused_in_one_message(fmus, tmp_path):
     """A foreign FMU whose script has exactly the name of MEMS.fmu's script (emcosim_fmu_<tag>_MEMS),
     instantiated first: MEMS.fmu refuses to instantiate (NULL) with one fmi2Error message naming the

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 from itertools import product
 
 import numpy as np
-from scipy import linalg, optimize
+from scipy import linalg
 
 from . import closed_loop
 from .controller import Controller
@@ -106,7 +106,7 @@ def _fmt(v) -> str:
 
 @dataclass
 class Neighbourhood:
-    """Samples (eta, jet) of the tube {eta*(t) + d : |d_i| <= radius_i, t in [0, horizon]}."""
+    """Samples (eta, jet) of the tube {eta*(t) + d : |d_i| <= radius_i, t in times} (see `neighbourhood`)."""
 
     samples: list
     times: np.ndarray
@@ -553,13 +553,13 @@ def optimal_metric(jacobians: list[np.ndarray], scale: np.ndarray, nominal: np.n
         else:
             hi = 0.0
     step = size
-    while hi - lo > 8 * size and gevp_solves(statuses) < MAX_SOLVES // 2:   # far below: walk down geometrically
+    while hi - lo > 8 * size and sum(statuses.values()) < MAX_SOLVES // 2:   # far below: walk down geometrically
         lam = hi - step
         if probe(lam):
             lo = lam
             break
         hi, step = lam, 4 * step
-    while hi - lo > rtol * max(abs(lo), abs(hi), size * 1e-3) and gevp_solves(statuses) < MAX_SOLVES:
+    while hi - lo > rtol * max(abs(lo), abs(hi), size * 1e-3) and sum(statuses.values()) < MAX_SOLVES:
         mid = 0.5 * (lo + hi)
         if probe(mid):
             lo = mid
@@ -570,11 +570,7 @@ def optimal_metric(jacobians: list[np.ndarray], scale: np.ndarray, nominal: np.n
     opts = ", ".join(f"{k}={v:g}" for k, v in SDP_TOLERANCES.items()) if solver == "CLARABEL" else "defaults"
     return MetricSolution(best_rate, 0.5 * (Omega + Omega.T), upper, reason,
                           f"{solver} via cvxpy ({opts}); bisection on lam to rtol {rtol:g}", statuses,
-                          gevp_solves(statuses), infeasible)
-
-
-def gevp_solves(statuses: dict) -> int:
-    return sum(statuses.values())
+                          sum(statuses.values()), infeasible)
 
 
 def lemma1(controller: Controller, nb: Neighbourhood) -> tuple[Check, MetricSolution]:

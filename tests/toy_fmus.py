@@ -15,9 +15,10 @@ SOURCE = Path(__file__).parent / "fixtures" / "toy_derivatives.c"
 MODELS = {
     "dynamic": [("a", "parameter", "fixed", 0.0), ("b", "parameter", "fixed", 1.0), ("x0", "parameter", "fixed", 1.0),
                 ("u", "input", "continuous", 0.0), ("x", "output", "continuous", None),
-                ("fail_at", "parameter", "fixed", 1e300)],
+                ("fail_at", "parameter", "fixed", 1e300), ("input_order", "parameter", "fixed", 3.0)],
     "static": [("k1", "parameter", "fixed", 1.0), ("k2", "parameter", "fixed", 0.0), ("u1", "input", "continuous", 0.0),
-               ("u2", "input", "continuous", 0.0), ("y", "output", "continuous", None)],
+               ("u2", "input", "continuous", 0.0), ("y", "output", "continuous", None),
+               ("input_order", "parameter", "fixed", 3.0)],
     "sine": [("A", "parameter", "fixed", 1.0), ("omega", "parameter", "fixed", 1.0), ("phi", "parameter", "fixed", 0.0),
              ("y", "output", "continuous", None)],
 }

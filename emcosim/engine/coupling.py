@@ -53,12 +53,14 @@ def capabilities(model_description) -> Capabilities:
 
 
 def connection_orders(instances: dict, connections, level: dict[str, int], depends: dict[str, set[str]],
-                      requested: int | None = None) -> dict[str, int]:
+                      requested: int | None = None, accepted: dict[str, int] | None = None) -> dict[str, int]:
     """Derivative order of every connection, by its input's full name (module docstring).
 
     level: full output name -> dependency level (dependencies.levels); depends: full output name ->
     full input names it depends on (direct feedthrough). requested: the order asked for (None: as
-    high as both ends allow, up to MAX_ORDER); a ScenarioError if it is not 0..MAX_ORDER."""
+    high as both ends allow, up to MAX_ORDER); a ScenarioError if it is not 0..MAX_ORDER.
+    accepted: component -> the highest input derivative order it was found to accept (FMI 2.0
+    does not declare it; see master.Simulation's first communication point)."""
     if requested is not None and not (isinstance(requested, int) and 0 <= requested <= MAX_ORDER):
         raise ScenarioError(f"coupling order {requested!r} must be an integer from 0 to {MAX_ORDER}")
     cap = MAX_ORDER if requested is None else requested
@@ -75,7 +77,8 @@ def connection_orders(instances: dict, connections, level: dict[str, int], depen
         for c in connections:
             if c.start == out:
                 target = caps[c.end_element]
-                order_of[c.end] = min(n, cap) if target.interpolates_inputs else 0
+                limit = (accepted or {}).get(c.end_element, MAX_ORDER)
+                order_of[c.end] = min(n, cap, limit) if target.interpolates_inputs else 0
     return order_of
 
 

@@ -170,6 +170,8 @@ class Simulation:
         self._shadow: dict[str, Instance] | None = None     # the copy for error estimation (stepcontrol)
         self._shadow_own: list[str] = []                     # its own instances (the others are shared)
         self._shadow_used = False
+        self._accepted: dict[str, int] = {}                  # input derivative orders found accepted
+        self.coupling_warnings: list[str] = []
         self.instances = load(scenario)
         self.connections = check_connections(scenario, self.instances)
         try:
@@ -220,16 +222,17 @@ class Simulation:
             self.runs += 1
             plan = self._plan(record, self.instances)
             orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
-                                                coupling_order)
+                                                coupling_order, self._accepted)
             result = Result(plan.columns)
             stepper = _Stepper(self.scenario, self.instances, plan, [0.0] * _n_slots(plan),
                                self._derivatives(plan, orders, self.instances))
             steppers.append(stepper)
             mains.append(stepper)
             _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
+            orders = self._settle_orders(stepper, plan, orders, coupling_order, t0)
             result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
                                for name, inst in self.instances.items() for m in inst.messages
-                               if m.startswith("[warning]")]
+                               if m.startswith("[warning]")] + list(dict.fromkeys(self.coupling_warnings))
             if tolerance is None:
                 _run_fixed(stepper, result, t0, t_stop, h, progress)
                 break
@@ -259,6 +262,41 @@ class Simulation:
             timing.update(total=total, fmu=fmu, steps=n_steps, fmus=len(self.instances), per_fmu=per_fmu,
                           overhead_per_fmu_step=(total - fmu) / max(1, n_steps * len(self.instances)))
         return result
+
+    def _settle_orders(self, stepper: "_Stepper", plan: Plan, orders: dict[str, int], requested: int | None,
+                       t0: float) -> dict[str, int]:
+        """FMI 2.0 declares canInterpolateInputs but not up to which derivative order: at the first
+        communication point a target that refuses an order k > 1 of fmi2SetRealInputDerivatives
+        (fmi2Error) is restored to its state before the call (fmi2SetFMUstate) and coupled at order
+        k - 1 from then on (a warning says so)."""
+        while stepper.derivatives is not None:
+            slaves = [inst.slave for inst in self.instances.values()
+                      if inst.model_description.coSimulation.canGetAndSetFMUstate]
+            states = [s.getFMUstate() for s in slaves]
+            stepper.t = t0
+            stepper.resolve(with_derivatives=False)
+            failure = stepper.derivatives.resolve()
+            if failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
+                    max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate:
+                for s, st in zip(slaves, states):
+                    s.setFMUstate(st)
+            for s, st in zip(slaves, states):
+                s.freeFMUstate(st)
+            if failure is None:
+                break
+            transfer, exc = failure
+            k = max(transfer.order)
+            if transfer.function != "fmi2SetRealInputDerivatives" or k <= 1 or \
+                    not transfer.inst.model_description.coSimulation.canGetAndSetFMUstate:
+                stepper._failed(transfer, exc)
+            name = transfer.inst.name
+            self._accepted[name] = k - 1
+            self.coupling_warnings.append(f"{name}: refuses input derivatives of order {k}{_last_message(transfer.inst)}; "
+                                          f"coupled with derivatives up to order {k - 1}")
+            orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
+                                                requested, self._accepted)
+            stepper.derivatives = self._derivatives(plan, orders, self.instances)
+        return orders
 
     def _plan(self, record, instances) -> Plan:
         key = (None if record is None else tuple(record), id(instances))

@@ -96,12 +96,13 @@ class _DerivativeTransfer:
         self.function = "fmi2GetRealOutputDerivatives" if getter else "fmi2SetRealInputDerivatives"
         self.call = inst.slave._functions[self.function]
         self.n = n
+        self.args = (inst.slave.component, self.vr, n, self.order, self.values)
         self.elapsed = 0.0
         self.slots: list[int] = []                                # derivative slots, one per entry
 
     def __call__(self) -> None:
         tic = time.perf_counter()
-        status = self.call(self.inst.slave.component, self.vr, self.n, self.order, self.values)
+        status = self.call(*self.args)
         self.elapsed += time.perf_counter() - tic
         if status > 1:
             raise FMICallException(self.function, status)

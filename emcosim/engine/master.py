@@ -24,6 +24,7 @@ The master knows nothing of the models: any FMI 2.0 co-simulation FMU and any SS
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import math
 import shutil
 import tempfile
@@ -79,14 +80,31 @@ class _Transfer:
         self.function = f"{prefix}{type_}"
         self.call = inst.slave._functions[self.function]     # the raw ctypes function
         self.n = len(vrs)
+        self.args = (inst.slave.component, self.vr, self.n, self.values)   # plans are rebuilt with the instances
         self.elapsed = 0.0                                     # wall time inside the FMU
 
     def __call__(self) -> None:
         tic = time.perf_counter()
-        status = self.call(self.inst.slave.component, self.vr, self.n, self.values)
+        status = self.call(*self.args)
         self.elapsed += time.perf_counter() - tic
         if status > 1:
             raise FMICallException(self.function, status)
+
+
+class _Mirror:
+    """A get of the shadow copy (stepcontrol.py) from a source it shares with the main copy: the
+    values the main copy read at the same communication point, copied instead of asked again."""
+
+    def __init__(self, transfer, source: list, source_slots: list[int]):
+        self.inst, self.slots, self.function = transfer.inst, transfer.slots, transfer.function
+        self.values = [0.0] * len(source_slots)
+        self.source, self.source_slots = source, source_slots
+        self.elapsed = 0.0
+
+    def __call__(self) -> None:
+        values, source = self.values, self.source
+        for i, s in enumerate(self.source_slots):
+            values[i] = source[s]
 
 
 @dataclass
@@ -101,6 +119,7 @@ class Plan:
     depends: dict = field(default_factory=dict)    # full output name -> full inputs it depends on
     input_slots: list = field(default_factory=list)  # [(connected input full name, value slot)]
     dynamic: set = field(default_factory=set)      # components with an output not fed through from an input
+    slot: dict = field(default_factory=dict)       # full name -> slot in the value buffer
 
 
 def simulate(scenario: Scenario, stop_time: float | None = None, step_size: float | None = None,
@@ -171,7 +190,6 @@ class Simulation:
         self._shadow_own: list[str] = []                     # its own instances (the others are shared)
         self._shadow_used = False
         self._accepted: dict[str, int] = {}                  # input derivative orders found accepted
-        self.coupling_warnings: list[str] = []
         self.instances = load(scenario)
         self.connections = check_connections(scenario, self.instances)
         try:
@@ -232,7 +250,8 @@ class Simulation:
             orders = self._settle_orders(stepper, plan, orders, coupling_order, t0)
             result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
                                for name, inst in self.instances.items() for m in inst.messages
-                               if m.startswith("[warning]")] + list(dict.fromkeys(self.coupling_warnings))
+                               if m.startswith("[warning]")]
+            result.coupling_orders = dict(orders)
             if tolerance is None:
                 _run_fixed(stepper, result, t0, t_stop, h, progress)
                 break
@@ -241,6 +260,7 @@ class Simulation:
                 stepcontrol.check_rollback(stepper, t0, min(h, max_step))
             shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop)
             steppers.append(shadow)
+            shadow.mirror(stepper, set(self.instances) - set(self._shadow_own))
             report = stepcontrol.run(stepper, shadow, result, t0, t_stop, tolerance, h, max_step,
                                      min(orders.values(), default=0), progress, level)
             if first is not None:                     # the second run: report both
@@ -268,7 +288,8 @@ class Simulation:
         """FMI 2.0 declares canInterpolateInputs but not up to which derivative order: at the first
         communication point a target that refuses an order k > 1 of fmi2SetRealInputDerivatives
         (fmi2Error) is restored to its state before the call (fmi2SetFMUstate) and coupled at order
-        k - 1 from then on (a warning says so)."""
+        k - 1 from then on (`result.coupling_orders` gives the orders used; the FMU's refusal is not
+        kept among its messages)."""
         while stepper.derivatives is not None:
             slaves = [inst.slave for inst in self.instances.values()
                       if inst.model_description.coSimulation.canGetAndSetFMUstate]
@@ -289,17 +310,19 @@ class Simulation:
             if transfer.function != "fmi2SetRealInputDerivatives" or k <= 1 or \
                     not transfer.inst.model_description.coSimulation.canGetAndSetFMUstate:
                 stepper._failed(transfer, exc)
-            name = transfer.inst.name
-            self._accepted[name] = k - 1
-            self.coupling_warnings.append(f"{name}: refuses input derivatives of order {k}{_last_message(transfer.inst)}; "
-                                          f"coupled with derivatives up to order {k - 1}")
+            self._accepted[transfer.inst.name] = k - 1
+            messages = transfer.inst.messages
+            while messages and not messages[-1].startswith("[ok]"):
+                messages.pop()
             orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
                                                 requested, self._accepted)
             stepper.derivatives = self._derivatives(plan, orders, self.instances)
+            for t in stepper.derivatives.transfers() if stepper.derivatives is not None else []:
+                t.elapsed = 0.0
         return orders
 
     def _plan(self, record, instances) -> Plan:
-        key = (None if record is None else tuple(record), id(instances))
+        key = (None if record is None else tuple(record), instances is self._shadow)
         if key not in self._plans:
             self._plans[key] = _plan(self.scenario, instances, self.connections, record)
         return self._plans[key]
@@ -307,7 +330,7 @@ class Simulation:
     def _derivatives(self, plan: Plan, orders: dict[str, int], instances) -> coupling.DerivativePlan | None:
         if not any(orders.values()):
             return None
-        key = ("derivatives", tuple(sorted(orders.items())), id(instances))
+        key = ("derivatives", tuple(sorted(orders.items())), instances is self._shadow)
         if key not in self._plans:
             self._plans[key] = coupling.plan_derivatives(instances, self.connections, plan.level, orders)
         return self._plans[key]
@@ -342,6 +365,8 @@ class Simulation:
         return stepper
 
     def _free_shadow(self) -> None:
+        for key in [k for k in self._plans if k[-1] is True]:     # plans over the shadow's instances
+            del self._plans[key]
         for name in self._shadow_own:
             _free(self._shadow[name])
         self._shadow, self._shadow_own, self._shadow_used = None, [], False
@@ -552,7 +577,7 @@ def _plan(scenario: Scenario, instances: dict[str, Instance], connections, recor
     dynamic = {name for name, inst in instances.items()
                if any(not ins for ins in dependencies.feedthrough(inst.model_description).values())}
     return Plan(stages, record_gets, columns, [slot_of(f) for f in columns], level, depends,
-                [(c.end, slot_of(c.end)) for c in connections], dynamic)
+                [(c.end, slot_of(c.end)) for c in connections], dynamic, slot)
 
 
 def _batches(instances, fulls: list[str], slot_of, getter: bool):
@@ -598,6 +623,8 @@ class _Stepper:
         self.derivatives = derivatives
         self.order = [inst for name, inst in instances.items() if stepped is None or name in stepped]
         self.do_step = [(inst, inst.slave._functions["fmi2DoStep"], inst.slave.component) for inst in self.order]
+        for transfer in self.transfers():             # plans (and their transfers) are reused across runs
+            transfer.elapsed = 0.0
         self.step_time = 0.0
         self.step_times = {inst.name: 0.0 for inst in self.order}
         self.n_steps = 0
@@ -639,6 +666,23 @@ class _Stepper:
     def row(self) -> list:
         slots = self.slots
         return [slots[s] for s in self.plan.column_slots]
+
+    def mirror(self, main: "_Stepper", shared: set[str]) -> None:
+        """Read the outputs (and output derivatives) of the components `shared` with `main` from
+        main's buffers; main resolves each communication point first."""
+        def values(gets):
+            return [(_Mirror(t, main.slots, [main.plan.slot[n] for n in names]) if t.inst.name in shared else t, names)
+                    for t, names in gets]
+        plan = self.plan
+        self.plan = dataclasses.replace(plan, stages=[(values(gets), sets) for gets, sets in plan.stages],
+                                        record=values(plan.record))
+        d, md = self.derivatives, main.derivatives
+        if d is not None and md is not None:
+            def derivatives(gets):
+                return [_Mirror(t, md.values, [md.slot[(f"{t.inst.name}.{v}", k)] for v, k in t.entries])
+                        if t.inst.name in shared else t for t in gets]
+            self.derivatives = dataclasses.replace(d, passes=[[(derivatives(gets), sets) for gets, sets in levels]
+                                                              for levels in d.passes])
 
     def transfers(self) -> list:
         """Every get/set transfer of a communication point (values, records, derivatives)."""

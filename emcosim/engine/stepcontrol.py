@@ -46,7 +46,6 @@ LOW, HIGH = 0.2, 1.5  # a run whose estimate ends outside [LOW, HIGH] * toleranc
 SUBSTEPS = 2          # steps of the main copy per step of the shadow copy
 LEVEL_GROWTH = 1.0    # the defect level rises at most this much per step of the shadow copy
 STABLE_GROWTH = 1.02  # a step bound learnt from an unstable long step rises this much per step
-DEBUG = False
 
 
 @dataclass
@@ -161,7 +160,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
     capped = macro = 0
     calibration = 0.0
     spent = 0.0                                          # integral of the level eps over the run
-    richardson = SUBSTEPS ** p - 1
+    near = far_sum = 0.0                                 # integrals of the two copies' defects
     slaves = [inst.slave for inst in main.order + shadow.order]
     defect, far_defect = _Defect(main), _Defect(shadow)
     h = min(h0, h_max)
@@ -226,6 +225,9 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                         scale[i] = abs(r[i])
                 if scale[i] > 0:
                     estimate = max(estimate, abs(a - b) / scale[i])
+            near += worst * (tt - t)
+            far_sum += far_worst * (tt - t)
+            richardson = max(SUBSTEPS ** p, far_sum / near if near > 0 else 0.0) - 1
             estimate /= richardson
             for tr, r in rows:
                 result.append(tr, r)
@@ -235,8 +237,6 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
             report.estimated_error = max(report.estimated_error, estimate)
             spent += eps * (tt - t)
             calibration = max(calibration, estimate * (tt - t0) / spent)
-            if DEBUG:
-                print(f"t={tt:.4g} H={H:.3g} d={worst:.3g} dc/d={far_worst/max(worst,1e-300):.3g} E={estimate:.3g} eps={eps:.3g} C={calibration:.3g}")
             if calibration > 0:
                 eps = min(eps * LEVEL_GROWTH, aim / calibration)
             t = tt

@@ -62,8 +62,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--plot", help="also plot the recorded variables to this image file")
     run.add_argument("--record", help="comma-separated full variable names to record (default: every connector)")
     run.add_argument("--tolerance", type=float,
-                     help="error-controlled communication steps (step doubling with FMU-state rollback); "
-                          "the step size is then the maximum step")
+                     help="choose the communication steps so that the recorded variables keep this relative error "
+                          "over the run (FMU-state rollback, a shadow copy for the error estimate); the step size "
+                          "is then the first step")
+    run.add_argument("--max-step", type=float, help="largest step with --tolerance [s] (default: a fiftieth of the run)")
+    run.add_argument("--coupling-order", type=int, choices=range(0, 4), metavar="K",
+                     help="derivatives passed on the connections (0: zero-order hold; default: as many as both "
+                          "ends of a connection declare)")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.set_defaults(func=cmd_run)
@@ -140,7 +145,8 @@ def cmd_run(args) -> int:
     failure = None
     try:
         result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
-                          start_values=start_values, record=record, progress=bar, tolerance=args.tolerance)
+                          start_values=start_values, record=record, progress=bar, tolerance=args.tolerance,
+                          coupling_order=args.coupling_order, max_step=args.max_step)
     except SimulationError as exc:
         failure, result = exc, exc.result
     finally:
@@ -156,6 +162,8 @@ def cmd_run(args) -> int:
         saved = f"; {len(result)} rows up to t = {result.time[-1]:.9g} s saved to {output}" if result and len(result) else ""
         raise SimulationError(f"{failure}{saved}")
     print(f"{scenario.name}: {len(result)} rows to {output}" + (f", plot {args.plot}" if args.plot else ""))
+    if getattr(result, "step_control", None) is not None:
+        print(f"{scenario.name}: {result.step_control.summary()}")
     return 0
 
 

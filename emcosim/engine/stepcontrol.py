@@ -7,28 +7,38 @@ Nothing here knows the models; the error measures come from the FMUs' values.
 
 How (docs/scenarios.md, "Steps that keep a tolerance"):
 
-1. Local error: the extrapolation defect of the coupling. Over a step [t, t + h] every connected
-   input follows the polynomial the master handed over at t (its value, plus its derivatives with
-   higher-order coupling; see coupling.py). At t + h the master reads the true value; the defect
-   d = max_inputs |u(t + h) - P(h)| / max_t |u| is the coupling error the step made, O(h^p) with p
-   = coupling order + 1. A step whose defect exceeds 2 eps is rejected: every FMU is rolled back
-   with fmi2SetFMUstate and the step retried shorter. The next step is h (eps / d)^(1/p) (limited
-   to [h/5, 2h]), so that every step makes a defect of about eps: an error per unit step, since a
-   defect in an input acts on the solution for as long as the step lasts.
-2. Global error: lockstep Richardson extrapolation. A shadow copy of the FMUs (sources without
-   inputs are shared: their outputs depend on time only) takes one step of 2h for every two steps
-   of h of the main copy, over the same communication points. Both have global errors c h^p (the
-   same smooth error function), so at every second point the main copy's global error is estimated
-   as E = |y_shadow - y_main| / (2^p - 1) per recorded variable, relative to its largest magnitude.
+1. Local error: the extrapolation defect of the coupling. Over a step [t, t + h] a connected input
+   follows the polynomial the master handed over at t (its value, plus its derivatives with
+   higher-order coupling; coupling.py). At t + h the master reads the true value; the defect
+   d = max |u(t + h) - P(h)| / max_t |u| is the coupling error the step made, O(h^p) with p the
+   global order (coupling order + 1). It is measured on the inputs of FMUs that integrate them
+   (FMUs with an output not fed through from an input, i.e. with states; an FMU whose outputs all
+   depend on its inputs is treated as static: its inputs act through its outputs at the
+   communication points). A step with d > 2 eps is rejected: every FMU is rolled back
+   (fmi2SetFMUstate) and the step retried shorter. The next step is h (eps / d)^(1/p), in [h/5, 2h]:
+   every step makes a defect of about eps, an error per unit step (an input's defect acts on the
+   solution for as long as the step lasts).
+2. Global error: lockstep Richardson extrapolation. A shadow copy of the FMUs (FMUs without
+   connected inputs are shared: their outputs depend on time only) takes one step of 2h for every
+   two steps of h of the main copy, over the same communication points. Global errors go as h^p, so
+   the main copy's global error is E = |y_shadow - y_main| / (rho - 1) per recorded variable,
+   relative to its largest magnitude, with rho = 2^p, or the ratio of the two copies' defects over
+   the run where that is larger (a long step outside the asymptotic range). A long step whose
+   defect exceeds what a step of 2h may make (2^p * 2 eps) has left that range, typically the
+   stability limit of explicit coupling of a stiff loop: the step is rejected and halved, and that
+   bound is learnt (it rises by 2 % per step).
 3. Calibration: how much global error a defect level eps produces (what accumulates, how fast the
-   closed loop forgets) depends on the models. The run measures it as C = max_t E(t) / eps(t) and
-   sets eps = min(eps_0, aim / C) with aim = TOL/2: the level falls as the estimate grows, so the
-   error that accumulates stays near the aim. eps_0 = aim (one defect of eps gives an error of eps).
+   closed loop forgets) depends on the models. The run measures C = max_t E(t) (t - t0) / int eps
+   dt and keeps eps = min(aim, aim / C), aim = TOL/2. It starts at eps = aim and never rises
+   within a run (an estimate grows only after the error has accumulated: raising eps on a small
+   early estimate spends the budget in the initial transient).
+4. A second run: when the run's largest estimate ends outside [0.2, 1.5] TOL although the steps
+   were not held by the maximum step or the stability bound, the scenario is run again with
+   eps = aim / C from the first run's calibration (the global error is proportional to eps).
 
-Cost: the shadow copy adds half a step of every FMU with inputs per communication step, plus one
-FMU-state save of the main copy per two steps (rollback; the shadow copy steps only after the
-main copy's steps were accepted). The report gives the steps taken and rejected and the
-estimated error.
+Cost: the shadow copy adds half a step of every FMU with inputs per communication step, plus an
+FMU-state save of both copies per two steps (rollback). The report gives the steps taken and
+rejected, the runs, and the estimated error.
 """
 from __future__ import annotations
 
@@ -44,7 +54,7 @@ SAFETY = 0.9
 GROW, SHRINK = 2.0, 0.2
 LOW, HIGH = 0.2, 1.5  # a run whose estimate ends outside [LOW, HIGH] * tolerance is run again
 SUBSTEPS = 2          # steps of the main copy per step of the shadow copy
-LEVEL_GROWTH = 1.0    # the defect level rises at most this much per step of the shadow copy
+LEVEL_FLOOR = 1e-4    # eps never falls below this times the aim (a diverging estimate cannot stall the run)
 STABLE_GROWTH = 1.02  # a step bound learnt from an unstable long step rises this much per step
 
 
@@ -238,7 +248,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
             spent += eps * (tt - t)
             calibration = max(calibration, estimate * (tt - t0) / spent)
             if calibration > 0:
-                eps = min(eps * LEVEL_GROWTH, aim / calibration)
+                eps = max(min(eps, aim / calibration), aim * LEVEL_FLOOR)
             t = tt
             factor = SAFETY * (eps / worst) ** (1.0 / p) if worst > 0 else GROW
             h_stable *= STABLE_GROWTH

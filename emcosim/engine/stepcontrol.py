@@ -70,13 +70,15 @@ class StepReport:
     h_max: float = 0.0
     estimated_error: float = 0.0  # largest global error estimate of the run (relative, see module doc)
     level: float = 0.0            # final defect level eps
+    held: float = 0.0             # fraction of the steps held by the maximum step or the stability bound
     passes: int = 1               # runs made (a second one when the first missed the aim, see `run`)
     next_level: float | None = None   # the level a second run should take (None: none needed)
 
     def summary(self) -> str:
         again = f" in {self.passes} runs" if self.passes > 1 else ""
+        held = f", {100 * self.held:.0f}% held by the maximum step or stability" if self.held >= 0.05 else ""
         return (f"{self.accepted} communication steps{again} ({self.rejected} rejected), steps {self.h_min:.3g} s to "
-                f"{self.h_max:.3g} s, estimated error {self.estimated_error:.2g} (tolerance {self.tolerance:g}, "
+                f"{self.h_max:.3g} s{held}, estimated error {self.estimated_error:.2g} (tolerance {self.tolerance:g}, "
                 f"coupling order {self.coupling_order})")
 
 
@@ -209,6 +211,8 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                 far_worst = far_defect.measure(tt - t)
                 if far_worst > SUBSTEPS ** p * REJECT * eps:
                     raise _Rejected(0.5)             # the long step left the asymptotic range (unstable?)
+                if worst > 0.1 * eps and far_worst < 0.5 * SUBSTEPS ** p * worst:
+                    raise _Rejected(0.5)             # h and 2h make alike defects: not asymptotic either
             except (_Rejected, SimulationError) as why:
                 # a defect too large, or an FMU that failed on the long step: roll back, shorter
                 if isinstance(why, SimulationError) and H <= 1e-9 * max(1.0, abs(t)):
@@ -262,8 +266,9 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
         exc.result = result
         raise
     report.level = eps
+    report.held = capped / macro if macro else 0.0
     E = report.estimated_error
-    if level is None and calibration > 0 and (E > HIGH * tolerance or (E < LOW * tolerance and capped < 0.9 * macro)):
+    if level is None and calibration > 0 and (E > HIGH * tolerance or (E < LOW * tolerance and report.held < 0.9)):
         report.next_level = aim / calibration
     if progress is not None:
         progress(1.0)

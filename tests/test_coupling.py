@@ -173,7 +173,7 @@ def test_fmus_without_derivatives_run_as_a_plain_hold_master(fmu_dir, tmp_path):
     controller's u at the same instant; inputs held over the step)."""
     name, h, n = "maglev_tracking_D-1_R2.82", 5e-4, 200
     s = read_scenario(Path(__file__).resolve().parents[1] / "scenarios" / name, fmu_dir=fmu_dir)
-    ours = simulate(s, stop_time=n * h, coupling_order=0, record=["plant.q", "plant.p", "plant.x_e", "controller.u"])
+    ours = simulate(s, stop_time=n * h, step_size=h, coupling_order=0, record=["plant.q", "plant.p", "plant.x_e", "controller.u"])
     theirs = _plain_master(s, n, h, tmp_path)
     for column in ("plant.q", "plant.p", "plant.x_e", "controller.u"):
         np.testing.assert_array_equal(ours[column], theirs[column], err_msg=column)

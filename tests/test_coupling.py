@@ -81,8 +81,8 @@ def test_derivatives_give_the_taylor_recursion(make, K):
 
 
 def test_default_order_is_what_both_ends_declare(make):
-    full = simulate(loop(make, order=2), record=["plant.x"])            # both ends: order 2
-    np.testing.assert_allclose(full["plant.x"], taylor(-0.01, 2) ** np.arange(len(full)), rtol=1e-13)
+    full = simulate(loop(make, order=3), record=["plant.x"])            # both ends: order 3
+    np.testing.assert_allclose(full["plant.x"], taylor(-0.01, 3) ** np.arange(len(full)), rtol=1e-13)
     none = simulate(loop(make, interpolate=False), record=["plant.x"])  # no input interpolation: hold
     np.testing.assert_array_equal(none["plant.x"], _zoh(-1.0, 0.01, 100))
 
@@ -94,6 +94,31 @@ def _zoh(k: float, h: float, n: int) -> np.ndarray:
     for i in range(n):
         x.append(x[-1] + (k * x[-1]) * ((i + 1) * h - i * h))
     return np.array(x)
+
+
+def test_one_order_more_by_extrapolation(make):
+    """The controller gives du/dt only, the plant takes u'' too: the master passes the backward
+    difference u''_n = (u'_n - u'_{n-1}) / h (0 at the first point) while it predicts u' better than
+    holding it, and the global error falls at order 3 instead of 2."""
+    k, h, n = -1.0, 0.01, 100
+    r = simulate(loop(make, order=1), record=["plant.x"])
+    assert r.coupling_orders["plant.u"] == 2
+    x, du_prev = [1.0], None
+    for i in range(n):
+        u = k * x[-1]
+        du = k * u                                       # y' = k x', x' = u (set at the same instant)
+        d2u = 0.0 if i < 1 else (du - du_prev) / h
+        x.append(x[-1] + h * u + h * h / 2 * du + h ** 3 / 6 * d2u)
+        du_prev = du
+    np.testing.assert_allclose(r["plant.x"], x, rtol=1e-12)
+    errors = []
+    for step in (0.04, 0.02, 0.01):
+        r = simulate(loop(make, order=1, step_size=step), record=["plant.x"])
+        errors.append(np.max(np.abs(r["plant.x"] - np.exp(-r.time))))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 2.7), (errors, orders)
+    r = simulate(loop(make, order=1), coupling_order=1, record=["plant.x"])   # asked: no more than 1
+    np.testing.assert_allclose(r["plant.x"], taylor(-0.01, 1) ** np.arange(len(r)), rtol=1e-13)
 
 
 def test_zero_order_is_bit_identical_to_the_hold(make):
@@ -144,6 +169,7 @@ def test_a_target_refusing_an_order_is_coupled_one_order_lower(make):
     r = simulate(s, record=["plant.x"])
     np.testing.assert_allclose(r["plant.x"], taylor(-0.01, 1) ** np.arange(len(r)), rtol=1e-13)
     assert r.coupling_orders == {"ctrl.u1": 3, "plant.u": 1} and r.warnings == []
+    assert simulate(s, coupling_order=2, record=["plant.x"]).coupling_orders["plant.u"] == 1
 
 
 def test_connection_orders_follow_the_declarations(make):

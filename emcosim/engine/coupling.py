@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import ctypes
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from fmpy.fmi1 import FMICallException
 
@@ -82,6 +82,22 @@ def connection_orders(instances: dict, connections, level: dict[str, int], depen
     return order_of
 
 
+def extrapolated_orders(instances: dict, connections, orders: dict[str, int], requested: int | None = None,
+                        accepted: dict[str, int] | None = None) -> dict[str, int]:
+    """Inputs that get one derivative order more than their source gives (module docstring):
+    input full name -> that order (orders[input] + 1), where the target interpolates and neither
+    the order asked for nor the order the target accepts is reached yet."""
+    cap = MAX_ORDER if requested is None else requested
+    out = {}
+    for c in connections:
+        if not capabilities(instances[c.end_element].model_description).interpolates_inputs:
+            continue
+        k = orders[c.end] + 1
+        if k <= cap and k <= (accepted or {}).get(c.end_element, MAX_ORDER):
+            out[c.end] = k
+    return out
+
+
 class _DerivativeTransfer:
     """fmi2GetRealOutputDerivatives / fmi2SetRealInputDerivatives of a batch of (variable, order)
     of one FMU, on preallocated arrays."""
@@ -108,31 +124,87 @@ class _DerivativeTransfer:
             raise FMICallException(self.function, status)
 
 
+class _Extrapolation:
+    """One derivative order more than the source gives, for the inputs of one target: the backward
+    difference of the highest order passed, between the previous communication point and this one,
+
+        u^(k+1)(t_n) ~ (u^(k)(t_n) - u^(k)(t_{n-1})) / (t_n - t_{n-1})      (u^(0) = u),
+
+    an O(h) estimate whose term u^(k+1) s^(k+1)/(k+1)! errs by O(h^(k+2)) over a step: the global error
+    falls to O(h^(k+2)), one order more. It is used only while it predicts better than holding u^(k):
+    at every point the master compares e_hold = |u^(k)(t_n) - u^(k)(t_{n-1})| with e_extrapolated =
+    |u^(k)(t_n) - u^(k)(t_{n-1}) - u^(k+1)_estimate(t_{n-1}) (t_n - t_{n-1})| (sums fading by 0.8 per
+    point); in the asymptotic range their ratio is O(h), and where the coupled loop oscillates at
+    the edge of stability (a stiff closed-loop mode) extrapolating makes it worse: then 0 is passed
+    (the polynomial of the source's own orders). At the first point 0 (no difference yet), at the
+    second the estimate (no comparison yet; a transient at the start is where it pays most). The
+    history keeps the points before t only, so a step that is rolled back and retried
+    (stepcontrol.py) uses the point it starts from, not the abandoned one."""
+
+    FADE, GAIN = 0.8, 1.0
+
+    def __init__(self, transfer: _DerivativeTransfer, below: list, inputs: list[str]):
+        self.transfer = transfer
+        self.below = below                   # slot (derivative values) of order k, or None for k = 0
+        self.value_slots: list[int] = []     # slot (master's value buffer) of each input, for k = 0
+        self.inputs = inputs
+        self.history: list[tuple] = []       # (t, values of order k, estimate of order k + 1, e_hold, e_extrapolated)
+
+    def __call__(self, t: float, values: list[float], slots: list[float]) -> None:
+        now = [values[b] if b is not None else slots[v] for b, v in zip(self.below, self.value_slots)]
+        history = self.history
+        while history and history[-1][0] >= t:
+            history.pop()
+        out = self.transfer.values
+        estimate, hold, extrapolated = [0.0] * len(now), 0.0, 0.0
+        if history:
+            t_prev, before, previous_estimate, hold, extrapolated = history[-1]
+            dt = t - t_prev
+            change = miss = 0.0
+            for i, (a, b) in enumerate(zip(now, before)):
+                estimate[i] = (a - b) / dt
+                change = max(change, abs(a - b))
+                miss = max(miss, abs(a - b - previous_estimate[i] * dt)) if previous_estimate is not None else miss
+            if previous_estimate is not None:
+                hold = self.FADE * hold + change
+                extrapolated = self.FADE * extrapolated + miss
+        use = bool(history) and (history[-1][2] is None or extrapolated < self.GAIN * hold)
+        for i in range(len(now)):
+            out[i] = estimate[i] if use else 0.0
+        for i, s in enumerate(self.transfer.slots):
+            values[s] = out[i]
+        history.append((t, now, estimate if history else None, hold, extrapolated))
+        del history[:-2]
+
+
 @dataclass
 class DerivativePlan:
     """The derivative transfers of a communication point, and where their values are kept.
 
     passes: per order k = 1..K, per level: (gets, sets); a get is a _DerivativeTransfer, a set is
         (_DerivativeTransfer, [(source slot, factor)]).
+    extrapolations: the extrapolated top orders (_Extrapolation), set after the passes.
     slot: (full name, order) -> index into `values` (outputs and connected inputs).
     orders: input full name -> coupling order.
     """
 
     passes: list
     slot: dict[tuple[str, int], int]
-    orders: dict[str, int]
+    orders: dict[str, int]             # input -> degree of its polynomial (exact and extrapolated orders)
     values: list[float]
+    extrapolations: list = field(default_factory=list)
 
     @property
     def max_order(self) -> int:
         return max(self.orders.values(), default=0)
 
     def transfers(self) -> list[_DerivativeTransfer]:
-        return [t for levels in self.passes for gets, sets in levels for t in gets + [s for s, _ in sets]]
+        return ([t for levels in self.passes for gets, sets in levels for t in gets + [s for s, _ in sets]]
+                + [e.transfer for e in self.extrapolations])
 
-    def resolve(self):
-        """Get and set every derivative of the current communication point (after the values).
-        Returns None, or (the transfer that failed, its FMICallException)."""
+    def resolve(self, t: float, slots: list[float]):
+        """Get and set every derivative of the communication point t (after the values; `slots`:
+        the master's value buffer). Returns None, or (the transfer that failed, its FMICallException)."""
         values = self.values
         try:
             for levels in self.passes:
@@ -149,6 +221,10 @@ class DerivativePlan:
                             out[i] = v
                             values[transfer.slots[i]] = v
                         transfer()
+            for extrapolation in self.extrapolations:
+                transfer = extrapolation.transfer
+                extrapolation(t, values, slots)
+                transfer()
         except FMICallException as exc:
             return transfer, exc
         return None
@@ -158,8 +234,12 @@ class DerivativePlan:
         return [self.slot[(full, k)] for k in range(1, self.orders.get(full, 0) + 1)]
 
 
-def plan_derivatives(instances: dict, connections, level: dict[str, int], orders: dict[str, int]) -> DerivativePlan:
-    """The derivative transfers for the connection orders `orders` (see connection_orders)."""
+def plan_derivatives(instances: dict, connections, level: dict[str, int], orders: dict[str, int],
+                     extrapolated: dict[str, int] | None = None,
+                     value_slot: dict[str, int] | None = None) -> DerivativePlan:
+    """The derivative transfers for the connection orders `orders` (connection_orders) and the
+    inputs that get one order more by extrapolation (extrapolated_orders); value_slot: full name ->
+    slot of the master's value buffer (for an extrapolated first order)."""
     slot: dict[tuple[str, int], int] = {}
 
     def slot_of(key: tuple[str, int]) -> int:
@@ -201,4 +281,17 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
                 sets.append((t, [(slot_of((c.start, k)), c.factor) for c in conns]))
             levels.append((gets, sets))
         passes.append(levels)
-    return DerivativePlan(passes, slot, dict(orders), [0.0] * len(slot))
+    extra = []
+    by_target: dict[str, list] = {}
+    for c in connections:
+        if c.end in (extrapolated or {}):
+            by_target.setdefault(c.end_element, []).append(c)
+    for comp, conns in by_target.items():
+        t = _DerivativeTransfer(instances[comp], [(c.end_connector, extrapolated[c.end]) for c in conns], getter=False)
+        t.slots = [slot_of((c.end, extrapolated[c.end])) for c in conns]
+        below = [slot_of((c.end, extrapolated[c.end] - 1)) if extrapolated[c.end] > 1 else None for c in conns]
+        e = _Extrapolation(t, below, [c.end for c in conns])
+        e.value_slots = [(value_slot or {}).get(c.end, -1) for c in conns]
+        extra.append(e)
+    degree = dict(orders) | dict(extrapolated or {})
+    return DerivativePlan(passes, slot, degree, [0.0] * len(slot), extra)

@@ -243,7 +243,7 @@ class Simulation:
                                                 coupling_order, self._accepted)
             result = Result(plan.columns)
             stepper = _Stepper(self.scenario, self.instances, plan, [0.0] * _n_slots(plan),
-                               self._derivatives(plan, orders, self.instances))
+                               self._derivatives(plan, orders, self.instances, coupling_order))
             steppers.append(stepper)
             mains.append(stepper)
             _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
@@ -251,18 +251,19 @@ class Simulation:
             result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
                                for name, inst in self.instances.items() for m in inst.messages
                                if m.startswith("[warning]")]
-            result.coupling_orders = dict(orders)
+            result.coupling_orders = dict(stepper.derivatives.orders) if stepper.derivatives is not None else dict(orders)
             if tolerance is None:
                 _run_fixed(stepper, result, t0, t_stop, h, progress)
                 break
             _check_state_support(self.instances)
             if attempt == 0:
                 stepcontrol.check_rollback(stepper, t0, min(h, max_step))
-            shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop)
+            shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop,
+                                          coupling_order)
             steppers.append(shadow)
             shadow.mirror(stepper, set(self.instances) - set(self._shadow_own))
             report = stepcontrol.run(stepper, shadow, result, t0, t_stop, tolerance, h, max_step,
-                                     min(orders.values(), default=0), progress, level)
+                                     _degree(result.coupling_orders, plan.dynamic), progress, level)
             if first is not None:                     # the second run: report both
                 report.passes = 2
                 report.accepted += first.accepted
@@ -296,7 +297,7 @@ class Simulation:
             states = [s.getFMUstate() for s in slaves]
             stepper.t = t0
             stepper.resolve(with_derivatives=False)
-            failure = stepper.derivatives.resolve()
+            failure = stepper.derivatives.resolve(t0, stepper.slots)
             if failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
                     max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate:
                 for s, st in zip(slaves, states):
@@ -316,9 +317,8 @@ class Simulation:
                 messages.pop()
             orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
                                                 requested, self._accepted)
-            stepper.derivatives = self._derivatives(plan, orders, self.instances)
-            for t in stepper.derivatives.transfers() if stepper.derivatives is not None else []:
-                t.elapsed = 0.0
+            stepper.derivatives = self._derivatives(plan, orders, self.instances, requested)
+            stepper.reset_counters()
         return orders
 
     def _plan(self, record, instances) -> Plan:
@@ -327,15 +327,18 @@ class Simulation:
             self._plans[key] = _plan(self.scenario, instances, self.connections, record)
         return self._plans[key]
 
-    def _derivatives(self, plan: Plan, orders: dict[str, int], instances) -> coupling.DerivativePlan | None:
-        if not any(orders.values()):
+    def _derivatives(self, plan: Plan, orders: dict[str, int], instances,
+                     requested: int | None) -> coupling.DerivativePlan | None:
+        extra = coupling.extrapolated_orders(instances, self.connections, orders, requested, self._accepted)
+        if not any(orders.values()) and not extra:
             return None
-        key = ("derivatives", tuple(sorted(orders.items())), instances is self._shadow)
+        key = ("derivatives", tuple(sorted(orders.items())), tuple(sorted(extra.items())), instances is self._shadow)
         if key not in self._plans:
-            self._plans[key] = coupling.plan_derivatives(instances, self.connections, plan.level, orders)
+            self._plans[key] = coupling.plan_derivatives(instances, self.connections, plan.level, orders, extra,
+                                                         plan.slot)
         return self._plans[key]
 
-    def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float) -> "_Stepper":
+    def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float, requested: int | None) -> "_Stepper":
         """The shadow copy for error estimation (stepcontrol.py): a second instance of every FMU with
         connected inputs, sharing the sources (FMUs without connected inputs) with the main copy."""
         fed = {c.end_element for c in self.connections}
@@ -359,8 +362,8 @@ class Simulation:
         shadow = self._shadow
         plan = self._plan(record, shadow)
         own = self._shadow_own
-        stepper = _Stepper(self.scenario, shadow, plan, [0.0] * _n_slots(plan), self._derivatives(plan, orders, shadow),
-                           stepped=own)
+        stepper = _Stepper(self.scenario, shadow, plan, [0.0] * _n_slots(plan),
+                           self._derivatives(plan, orders, shadow, requested), stepped=own)
         _initialize(self.scenario, {name: shadow[name] for name in own}, parameters, t0, t_stop, stepper)
         return stepper
 
@@ -623,8 +626,7 @@ class _Stepper:
         self.derivatives = derivatives
         self.order = [inst for name, inst in instances.items() if stepped is None or name in stepped]
         self.do_step = [(inst, inst.slave._functions["fmi2DoStep"], inst.slave.component) for inst in self.order]
-        for transfer in self.transfers():             # plans (and their transfers) are reused across runs
-            transfer.elapsed = 0.0
+        self.reset_counters()
         self.step_time = 0.0
         self.step_times = {inst.name: 0.0 for inst in self.order}
         self.n_steps = 0
@@ -654,7 +656,7 @@ class _Stepper:
         except FMICallException as exc:
             self._failed(transfer, exc)
         if self.derivatives is not None and with_derivatives:
-            failure = self.derivatives.resolve()
+            failure = self.derivatives.resolve(self.t, slots)
             if failure is not None:
                 self._failed(*failure)
 
@@ -666,6 +668,13 @@ class _Stepper:
     def row(self) -> list:
         slots = self.slots
         return [slots[s] for s in self.plan.column_slots]
+
+    def reset_counters(self) -> None:
+        """Plans (their transfers and extrapolation histories) are reused across runs: start afresh."""
+        for transfer in self.transfers():
+            transfer.elapsed = 0.0
+        for extrapolation in self.derivatives.extrapolations if self.derivatives is not None else []:
+            extrapolation.history.clear()
 
     def mirror(self, main: "_Stepper", shared: set[str]) -> None:
         """Read the outputs (and output derivatives) of the components `shared` with `main` from
@@ -761,6 +770,13 @@ def _run_fixed(stepper: _Stepper, result: Result, t0: float, t_stop: float, h: f
         raise
     if progress is not None:
         progress(1.0)
+
+
+def _degree(orders: dict[str, int], dynamic: set[str]) -> int:
+    """The coupling order that sets the global error: the lowest polynomial degree on the inputs of
+    FMUs that integrate them (stepcontrol.py), else on all inputs."""
+    integrated = [k for name, k in orders.items() if name.partition(".")[0] in dynamic]
+    return min(integrated or list(orders.values()) or [0])
 
 
 def _check_state_support(instances: dict[str, Instance]) -> None:

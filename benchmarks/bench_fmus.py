@@ -9,12 +9,16 @@ paper gives none), its default experiment's step (1e-3 s):
   reference   doStep + getReal(jet), versus reference.jet(t).
 Python host: FMI calls go straight to the FMU's ctypes functions with pre-allocated arrays;
 "fmpy" is the same through FMU2Slave's Python methods. Inputs vary from step to step like in a loop.
-The first rows measure the floor that pythonfmu 0.7.0 itself sets in this host, with a trivial slave (a
-static gain, tests/fixtures/emcosim_toy_gain.py) built on the spot. Each FMU's figure is printed
-beside that floor.
-C host: the same loop in tests/fixtures/c_host.c (compiled on the spot with gcc; pythonfmu starts its
-own interpreter), i.e. what Simulink, OpenModelica or libcosim pay: no ctypes on the caller's side.
-Targets (issue 3): MEMS plant doStep at h = 1e-6 s <= 50 us; controller set + doStep + get <= 10 us.
+C host: the same loop in tests/fixtures/c_host.c (compiled on the spot with gcc) started with an empty
+environment, i.e. what Simulink, OpenModelica or libcosim pay: no ctypes on the caller's side; the FMU's
+loader starts Python.
+The floor, measured in the same run in both hosts: the same FMI calls on a trivial slave (a static gain
+with no work of its own): "floor" is tests/fixtures/emcosim_toy_floor.py built like the FMUs (the same
+loader, pythonfmu library and interpreter), "raw pythonfmu" is tests/fixtures/emcosim_toy_gain.py built
+by pythonfmu's own builder (C host: run the old way, libpython preloaded and PYTHONHOME/PYTHONPATH set).
+Each FMU's figure is printed beside the floor; the controllers' target (issue 13): set + doStep + get
+within 1.5 times the floor in the C host. C-host figures are medians over --repeats processes per FMU,
+the FMUs and the floor taking turns.
 """
 from __future__ import annotations
 
@@ -185,14 +189,22 @@ def bench_reference(path: Path, n: int) -> list[tuple[str, float, float]]:
     return [("Reference doStep + get", median_us(fmu_ns), median_us(direct_ns))]
 
 
-def bench_floor(n: int) -> list[tuple[str, float, float]]:
-    """pythonfmu's own cost: a trivial slave (y = k x), doStep alone and set + doStep + get."""
-    import tempfile
+def floor_fmus(folder: Path) -> dict[str, Path]:
+    """The two floor FMUs, built into `folder`: "floor" (loader, as the FMUs) and "raw pythonfmu"."""
+    import build
     from pythonfmu import FmuBuilder
 
-    with tempfile.TemporaryDirectory() as tmp:
-        fmu = FmuBuilder.build_FMU(ROOT / "tests" / "fixtures" / "emcosim_toy_gain.py", dest=tmp)
-        raw = Raw(Path(fmu))
+    fixtures = ROOT / "tests" / "fixtures"
+    floor = build.build_fmus({"FloorGain": fixtures / "emcosim_toy_floor.py"}, folder / "floor")["FloorGain"]
+    raw = Path(FmuBuilder.build_FMU(fixtures / "emcosim_toy_gain.py", dest=folder / "raw"))
+    return {"floor": floor, "raw pythonfmu": raw}
+
+
+def bench_floor(floors: dict[str, Path], n: int) -> list[tuple[str, float, float]]:
+    """The floor in the Python host: a trivial slave (y = k x), doStep alone and set + doStep + get."""
+    rows = []
+    for label, fmu in floors.items():
+        raw = Raw(fmu)
         vx, bx = raw.refs(["x"])
         vy, by = raw.refs(["y"])
         step_ns, loop_ns = [], []
@@ -207,33 +219,44 @@ def bench_floor(n: int) -> list[tuple[str, float, float]]:
             raw.get_real(raw.c, vy, 1, by)
             loop_ns.append(time.perf_counter_ns() - t0)
         raw.free()
-    return [("pythonfmu floor: doStep (trivial slave)", median_us(step_ns), math.nan),
-            ("pythonfmu floor: set + doStep + get", median_us(loop_ns), math.nan)]
+        rows += [(f"{label}: doStep (trivial slave)", median_us(step_ns), math.nan),
+                 (f"{label}: set + doStep + get", median_us(loop_ns), math.nan)]
+    return rows
 
 
-def bench_c_host(folder: Path, n: int) -> list[tuple[str, float, float]] | str:
-    """Each FMU in the C host of tests/fixtures/c_host.c (no Python on the caller's side: what Simulink,
-    OpenModelica or libcosim pay): (name, median us of set + doStep + get, median us of doStep alone),
-    or why the host cannot be built here."""
+def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int) -> list[tuple[str, float, float]] | str:
+    """Each FMU and the floors in the C host of tests/fixtures/c_host.c under `env -i` (no Python on the
+    caller's side: what Simulink, OpenModelica or libcosim pay): (name, median us of set + doStep + get,
+    median us of doStep alone), medians over `repeats` processes taking turns; or why the host cannot be
+    built here. The raw pythonfmu floor runs the old way (libpython preloaded, PYTHONHOME/PYTHONPATH)."""
+    import sysconfig
     import tempfile
     from tests.c_host import CONTROLLER_INPUTS, compile_c_host, run_in_c_host
 
-    cases = {"MEMS": ({"u": 25.0}, ["q", "p", "x_e"], H["MEMS"]), "Maglev": ({"u": 0.009045}, ["q", "p", "x_e"], H["Maglev"])}
-    cases.update({i: (x, ["u"], H["MEMS" if i.startswith("MEMS") else "Maglev"]) for i, x in CONTROLLER_INPUTS.items()})
-    cases["Reference"] = ({}, JET, 1e-3)
-    rows = []
+    cases = {name: (path, {"x": 1.0}, ["y"], 1e-3) for name, path in floors.items()}
+    cases["MEMS"] = (folder / "MEMS.fmu", {"u": 25.0}, ["q", "p", "x_e"], H["MEMS"])
+    cases["Maglev"] = (folder / "Maglev.fmu", {"u": 0.009045}, ["q", "p", "x_e"], H["Maglev"])
+    cases.update({i: (folder / f"{i}.fmu", x, ["u"], H["MEMS" if i.startswith("MEMS") else "Maglev"])
+                  for i, x in CONTROLLER_INPUTS.items()})
+    cases["Reference"] = (folder / "Reference.fmu", {}, JET, 1e-3)
+    libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("INSTSONAME")
+    raw_env = {"LD_PRELOAD": str(libpython), "PYTHONHOME": sys.base_prefix,
+               "PYTHONPATH": sysconfig.get_paths()["purelib"]}
+    samples: dict[str, list[tuple[float, float]]] = {name: [] for name in cases}
     with tempfile.TemporaryDirectory() as tmp:
         exe = Path(tmp) / "c_host"
         reason = compile_c_host(exe)
         if reason:
             return reason
-        for identifier, (inputs, outputs, h) in cases.items():
-            steps = min(n, 500) if identifier == "Maglev" else n      # open loop: the ball reaches the magnet at 2 s
-            run, values = run_in_c_host(exe, folder / f"{identifier}.fmu", Path(tmp), inputs, outputs, h, steps)
-            if run.returncode != 0:
-                raise RuntimeError(f"{identifier} in the C host: exit status {run.returncode}: {run.stderr[-500:]}")
-            rows.append((identifier, values[0] / 1000.0, values[1] / 1000.0))
-    return rows
+        for _ in range(repeats):
+            for name, (fmu, inputs, outputs, h) in cases.items():
+                steps = min(n, 500) if name == "Maglev" else n      # open loop: the ball reaches the magnet at 2 s
+                run, values = run_in_c_host(exe, fmu, Path(tmp), inputs, outputs, h, steps,
+                                            env=raw_env if name == "raw pythonfmu" else None)
+                if run.returncode != 0:
+                    raise RuntimeError(f"{name} in the C host: exit status {run.returncode}: {run.stderr[-500:]}")
+                samples[name].append((values[0] / 1000.0, values[1] / 1000.0))
+    return [(name, statistics.median(s[0] for s in v), statistics.median(s[1] for s in v)) for name, v in samples.items()]
 
 
 def machine_speed_us() -> float:
@@ -248,43 +271,51 @@ def machine_speed_us() -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    import tempfile
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fmus", default=str(ROOT / "build" / "fmus"), help="folder with the built FMUs")
     parser.add_argument("-n", type=int, default=2000, help="communication steps per measurement")
+    parser.add_argument("--repeats", type=int, default=5, help="C host: processes per FMU (median)")
     args = parser.parse_args(argv)
     folder = Path(args.fmus)
-    if not (folder / "MEMS.fmu").exists():
-        import build
-        build.build(folder)
+    import build
+    build.build(folder, verbose=False)                       # a no-op when the FMUs are up to date
     speed = machine_speed_us()
-    rows = bench_floor(args.n)
-    for identifier in ("MEMS", "Maglev"):
-        rows += bench_plant(folder / f"{identifier}.fmu", identifier, args.n)
-    for identifier in CONTROLLERS:
-        rows += bench_controller(folder / f"{identifier}.fmu", identifier, args.n)
-    rows += bench_reference(folder / "Reference.fmu", args.n)
+    with tempfile.TemporaryDirectory() as tmp:
+        floors = floor_fmus(Path(tmp))
+        rows = bench_floor(floors, args.n)
+        for identifier in ("MEMS", "Maglev"):
+            rows += bench_plant(folder / f"{identifier}.fmu", identifier, args.n)
+        for identifier in CONTROLLERS:
+            rows += bench_controller(folder / f"{identifier}.fmu", identifier, args.n)
+        rows += bench_reference(folder / "Reference.fmu", args.n)
+        c_rows = bench_c_host(folder, floors, args.n, args.repeats)
     floor_step, floor_loop = rows[0][1], rows[1][1]
-    print(f"{'median per communication step':42s} {'FMU [us]':>9s} {'components [us]':>16s} {'FMU/comp.':>9s} "
-          f"{'FMU/floor':>9s}")
+    print(f"{'Python host, median per communication step':42s} {'FMU [us]':>9s} {'components [us]':>16s} "
+          f"{'FMU/comp.':>9s} {'FMU/floor':>9s}")
     for name, fmu_us, direct_us in rows:
         floor = floor_step if "doStep (h" in name or name.endswith("(trivial slave)") else floor_loop
         print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:9.2f} {fmu_us / floor:9.2f}")
-    print("floor: the same FMI calls on a trivial pythonfmu slave, measured in this run (FMU/floor = 1 means "
-          "the slave's own work costs nothing)")
+    print("floor: the same FMI calls on a trivial slave behind the same loader, measured in this run (FMU/floor = 1 "
+          "means the slave's own work costs nothing)")
     print(f"machine speed in this run: sum(range(1000)) takes {speed:.1f} us")
-    c_rows = bench_c_host(folder, args.n)
     print()
     if isinstance(c_rows, str):
         print(f"C host: not measured ({c_rows})")
         return 0
     python_host = {name.split()[0]: fmu_us for name, fmu_us, _ in rows if "set + doStep + get" in name or
                    name == "Reference doStep + get"}
-    print(f"{'C host (tests/fixtures/c_host.c), median':42s} {'set+doStep+get [us]':>20s} {'doStep [us]':>12s} "
-          f"{'Python host / C host':>21s}")
-    for identifier, loop_us, step_us in c_rows:
-        print(f"{identifier:42s} {loop_us:20.1f} {step_us:12.1f} {python_host[identifier] / loop_us:21.2f}")
+    c_floor = dict((name, loop) for name, loop, _ in c_rows)["floor"]
+    print(f"{'C host (tests/fixtures/c_host.c, env -i)':42s} {'set+doStep+get [us]':>20s} {'doStep [us]':>12s} "
+          f"{'/ floor':>8s} {'Python host / C host':>21s}")
+    for name, loop_us, step_us in c_rows:
+        python = python_host.get(name.split(":")[0].split()[0]) if name not in ("floor", "raw pythonfmu") else None
+        ratio = f"{python / loop_us:21.2f}" if python else f"{'':21s}"
+        print(f"{name:42s} {loop_us:20.1f} {step_us:12.1f} {loop_us / c_floor:8.2f} {ratio}")
     print("C host: inputs set (all of them), doStep, outputs read (plants: q, p, x_e; controllers: u; reference: "
-          "its jet); Python host: the table above (ctypes from Python)")
+          "its jet); floor: a trivial slave behind the same loader; raw pythonfmu: the same slave as pythonfmu "
+          "builds it, libpython preloaded")
     return 0
 
 

@@ -14,6 +14,7 @@ a usage error).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -89,7 +90,7 @@ def _parser() -> argparse.ArgumentParser:
 
     cert = sub.add_parser("certify", help="check the paper's conditions and certify a contraction rate for a scenario's design")
     cert.add_argument("scenario")
-    cert.add_argument("--radius", type=float, default=0.1,
+    cert.add_argument("--radius", type=_radius, default=0.1,
                       help="half-width of the neighbourhood around the reference, relative to each state's scale (default 0.1)")
     cert.add_argument("--include-start", action="store_true", help="widen the neighbourhood to contain the initial state")
     cert.add_argument("--json", help="also write the certificate as JSON to this file")
@@ -212,6 +213,17 @@ def cmd_reproduce(args) -> int:
         ensure_fmus()
     reproduce(args.out, stop_time=args.stop_time, fmu_dir=args.fmu_dir, jobs=args.jobs)
     return 0
+
+
+def _radius(text: str) -> float:
+    """--radius: a finite number > 0 (argparse reports the error and exits with status 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0 (relative half-width of the neighbourhood)")
+    return value
 
 
 def cmd_certify(args) -> int:

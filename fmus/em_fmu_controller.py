@@ -15,11 +15,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from components import catalog, certificates
-from components.controller import Controller
-from components.ph_plant import Jet
-from em_fmu_framework import REFERENCE_JET as JET, EMSlave
-from pythonfmu.enums import Fmi2Status
+from .components import catalog, certificates
+from .components.controller import Controller
+from .components.ph_plant import Jet
+from .em_fmu_framework import REFERENCE_JET as JET, EMSlave
+from .pythonfmu.enums import Fmi2Status
 
 STATE_NAMES = ("q", "p", "x_e")
 

@@ -14,9 +14,18 @@
   loggingOn, so errors are also echoed to stderr.
 - pythonfmu 0.7.0 also releases the script module's namespace once per fmi2Instantiate; every FMU
   script calls `hold_script_globals(globals())` so that a second instance does not crash the host.
-- This module is bundled, under the same name and with identical content, in every emcosim FMU; all
-  FMUs loaded in one process share the first copy imported (one interpreter). `check_bundle` verifies
-  at initialization that the shared modules already loaded are identical to this FMU's copies.
+  (Its exit-time heap corruption is worked around by the loader, which registers the library's
+  finalizePythonInterpreter as an exit handler.)
+- FMI 2.0 derivatives: pythonfmu 0.7.0 does not implement fmi2SetRealInputDerivatives,
+  fmi2GetRealOutputDerivatives and fmi2GetDirectionalDerivative; the FMU's binary (the loader,
+  emcosim_fmu_loader.c) answers them by calling the `fmi2_*` methods below on the slave it takes with
+  `take_new_slave` (contract: validation here, physics in the adapters' hooks `output_derivative` and
+  `directional_derivative`; the capabilities are class attributes written into modelDescription.xml).
+- Layout: this module, the adapters and a copy of components/ and of pythonfmu's Python package live in
+  the FMU's bundle package `emcosim_fmu_<build tag>` (build.py), and import each other relatively. All
+  Python FMUs of a process share one interpreter and its sys.modules; names unique to the build keep
+  FMUs of other builds and other vendors apart, and the loader refuses a module of these names that is
+  already loaded from another build.
 """
 from __future__ import annotations
 
@@ -27,13 +36,13 @@ import sys
 import threading
 import uuid
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, ClassVar
-from xml.etree.ElementTree import Element, SubElement
+from xml.etree.ElementTree import Element, SubElement, tostring
 
-from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
-from pythonfmu._version import __version__ as PYTHONFMU_VERSION
-from pythonfmu.enums import Fmi2Status
+from . import BUILD
+from .pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from .pythonfmu._version import __version__ as PYTHONFMU_VERSION
+from .pythonfmu.enums import Fmi2Status
 
 # pythonfmu versions whose exception handling was measured to drop the slave's references as described above
 REFCOUNT_COMPENSATED_VERSIONS = {"0.7.0"}
@@ -71,8 +80,8 @@ REFERENCE_JET = (("q_star", "m", "reference position q*"),
                  ("q_star_ddot", "m/s2", "second derivative of the reference position, q*''"),
                  ("q_star_dddot", "m/s3", "third derivative of the reference position, q*'''"))
 
-# modules every emcosim FMU bundles under the same names
-SHARED_MODULES = ("components", "em_fmu_framework", "em_fmu_plant", "em_fmu_controller", "em_fmu_reference")
+# FMI 2.0 status codes returned by the fmi2_* methods to the loader
+OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
 
 
 @dataclass
@@ -95,18 +104,6 @@ class Variable:
     initial_deps: list[str] | None = None
 
 
-def _tree_hash(path: Path) -> str:
-    """sha256 of the *.py sources of a package directory or a single module file."""
-    files = sorted(path.rglob("*.py")) if path.is_dir() else [path]
-    digest = hashlib.sha256()
-    for f in files:
-        if "__pycache__" in f.parts:
-            continue
-        digest.update(f.relative_to(path if path.is_dir() else path.parent).as_posix().encode())
-        digest.update(b"\0" + f.read_bytes() + b"\0")
-    return digest.hexdigest()
-
-
 def hold_script_globals(namespace: dict) -> None:
     """Call at the top level of every FMU script with globals().
 
@@ -117,45 +114,6 @@ def hold_script_globals(namespace: dict) -> None:
     the re-executions are balanced, the first import keeps one (the module lives for the process)."""
     if PYTHONFMU_VERSION in REFCOUNT_COMPENSATED_VERSIONS:
         ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
-
-
-# pythonfmu versions whose export library was measured to need `finalize_python_at_exit`
-EXIT_HOOK_VERSIONS = {"0.7.0"}
-_EXIT_HOOKS: dict[str, ctypes.CDLL] = {}
-
-
-def finalize_python_at_exit(resources: str, model_identifier: str) -> None:
-    """Have the C runtime release this FMU library's interpreter state first thing at process exit.
-
-    pythonfmu 0.7.0 keeps its interpreter state (`PyState`: the embedded interpreter when the host is
-    not Python) in a global shared_ptr and releases it only from C++ static and ELF destructors, which
-    glibc runs at exit after the exit handlers of every library loaded later (numpy's OpenBLAS and
-    libgfortran), and in an order that resets the already destroyed pointer (docs/reliability.md,
-    finding 1). Measured: a Python host aborted at exit in about 1 of 3 processes ("corrupted
-    double-linked list"), a C host crashed in Py_Finalize in most. Registering the library's own
-    `finalizePythonInterpreter` with __cxa_atexit once it is loaded (numpy is imported by then, so
-    this handler runs before numpy's) releases the state while everything it needs is intact; the
-    destructors then find an empty pointer. The library is never unloaded before exit anyway
-    (glibc marks it NODELETE: it defines unique symbols); the handle kept here makes sure of it."""
-    if not resources or PYTHONFMU_VERSION not in EXIT_HOOK_VERSIONS or not sys.platform.startswith("linux"):
-        return
-    binary = Path(resources).parent / "binaries" / "linux64" / f"{model_identifier}.so"
-    if not binary.is_file():                                 # e.g. the class instantiated by the builder
-        return
-    key = str(binary.resolve())
-    if key in _EXIT_HOOKS:
-        return
-    try:
-        library = ctypes.CDLL(key)                          # the already loaded library: same handle
-        libc = ctypes.CDLL(None)
-        libc.__cxa_atexit.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
-        if libc.__cxa_atexit(ctypes.cast(library.finalizePythonInterpreter, ctypes.c_void_p), None, None) != 0:
-            raise OSError("__cxa_atexit refused the handler")
-    except (OSError, AttributeError) as exc:
-        print(f"[{model_identifier}] warning: exit handler not registered ({exc}); the host may crash at exit",
-              file=sys.stderr, flush=True)
-        return
-    _EXIT_HOOKS[key] = library
 
 
 _PINNED_THREADS: set[int] = set()
@@ -179,18 +137,16 @@ def keep_thread_state() -> None:
     _PINNED_THREADS.add(thread.ident)
 
 
-_HASHES: dict[str, str] = {}
+_NEW_SLAVES: dict[int, "EMSlave"] = {}
 
 
-def _cached_hash(path: Path) -> str | None:
-    """Hash of a module's sources, remembered per path: a master may delete an FMU's unzip folder
-    after the run while the modules imported from it stay loaded. None if never seen and gone."""
-    key = str(path.resolve())
-    if key not in _HASHES:
-        if not path.exists():
-            return None
-        _HASHES[key] = _tree_hash(path)
-    return _HASHES[key]
+def take_new_slave() -> "EMSlave | None":
+    """The EMSlave constructed last on the calling thread and not taken yet, or None.
+
+    The loader calls this right after forwarding fmi2Instantiate and fmi2Reset to pythonfmu (which
+    constructs the slave on the calling thread, and a new one on reset), to know the Python object of
+    the instance for the FMI functions it answers itself."""
+    return _NEW_SLAVES.pop(threading.get_ident(), None)
 
 
 class EMSlave(Fmi2Slave):
@@ -202,6 +158,11 @@ class EMSlave(Fmi2Slave):
     model_identifier: ClassVar[str] = ""
     summary: ClassVar[str] = ""
     experiment: ClassVar[tuple[float, float, float]] = (0.0, 1.0, 1e-3)   # start, stop, step
+    # FMI 2.0 derivative capabilities (CoSimulation attributes of modelDescription.xml, see `to_xml`)
+    can_interpolate_inputs: ClassVar[bool] = False          # canInterpolateInputs
+    max_input_derivative_order: ClassVar[int] = 0           # highest order fmi2SetRealInputDerivatives accepts
+    max_output_derivative_order: ClassVar[int] = 0          # maxOutputDerivativeOrder
+    provides_directional_derivative: ClassVar[bool] = False  # providesDirectionalDerivative
     author = "emcosim"
     license = "MIT"
     version = "0.1.0"
@@ -222,9 +183,10 @@ class EMSlave(Fmi2Slave):
         self._real_inputs: dict[int, str] = {}                      # value reference -> name
         self.initialized = False
         self.time = 0.0
+        self.input_derivatives: dict[str, dict[int, float]] = {}     # input name -> {order: value}
         self.declare()
-        finalize_python_at_exit(self.resources, self.model_identifier)
         keep_thread_state()
+        _NEW_SLAVES[threading.get_ident()] = self
 
     # ---- declaration ----------------------------------------------------------------------------
     def declare(self) -> None:
@@ -355,7 +317,6 @@ class EMSlave(Fmi2Slave):
 
     def exit_initialization_mode(self):
         try:
-            self.check_bundle()
             self.initialize()
         except Exception as exc:                                      # noqa: BLE001
             self.initialized = False
@@ -382,6 +343,7 @@ class EMSlave(Fmi2Slave):
             return False
         if ok:
             self.time = current_time + step_size
+            self.input_derivatives.clear()                           # set again by the master for the next step
         return ok
 
     def step(self, t: float, h: float) -> bool:
@@ -416,6 +378,7 @@ class EMSlave(Fmi2Slave):
     def _get_fmu_state(self):
         try:
             return {"values": dict(self.values), "time": self.time, "initialized": self.initialized,
+                    "input_derivatives": {k: dict(v) for k, v in self.input_derivatives.items()},
                     "internal": self.save_internal()}
         except Exception as exc:                                      # noqa: BLE001
             self.log_error(f"{self.model_identifier}: getFMUstate failed: {exc}")
@@ -430,35 +393,114 @@ class EMSlave(Fmi2Slave):
             if state["initialized"] and (changed or not self.initialized):
                 self.initialize()
             self.initialized = state["initialized"]
+            self.input_derivatives = {name: {int(order): float(value) for order, value in orders.items()}
+                                      for name, orders in state.get("input_derivatives", {}).items()}
             self.restore_internal(state["internal"])
             self.inputs_changed()
         except Exception as exc:                                      # noqa: BLE001
             self.log_error(f"{self.model_identifier}: setFMUstate failed: {exc}")
 
-    # ---- shared code check ----------------------------------------------------------------------
-    def check_bundle(self) -> None:
-        """Raise if a shared module already loaded in this process differs from this FMU's copy."""
-        if not self.resources:
-            return
-        resources = Path(self.resources)
-        for name in SHARED_MODULES:
-            module = sys.modules.get(name)
-            if module is None or getattr(module, "__file__", None) is None:
-                continue
-            loaded = Path(module.__file__)
-            loaded = loaded.parent if loaded.name == "__init__.py" else loaded
-            bundled = resources / (name if module.__file__.endswith("__init__.py") else name + ".py")
-            loaded_hash = _cached_hash(loaded)          # remembered now, while the files exist
-            if not bundled.exists() or loaded.resolve() == bundled.resolve():
-                continue
-            if loaded_hash is None:
-                self.log(f"{self.model_identifier}: module {name} was loaded from {loaded}, which no longer "
-                         "exists; cannot check that it equals this FMU's copy", Fmi2Status.warning)
-                continue
-            if loaded_hash != _cached_hash(bundled):
-                raise RuntimeError(
-                    f"module {name} is already loaded in this process from {loaded} and differs from the "
-                    f"copy bundled in this FMU ({bundled}); FMUs sharing a process must come from one build")
+    # ---- FMI 2.0 derivatives (called by the loader with the GIL held; never raise) ----------------------
+    def fmi2_set_real_input_derivatives(self, vrs: list[int], orders: list[int],
+                                        values: list[float]) -> tuple[int, str]:
+        """Store d^order(input)/dt^order at the current communication point for the next doStep
+        (`input_derivatives`; all or nothing). Returns (fmi2Status, message)."""
+        where = f"{self.model_identifier}: fmi2SetRealInputDerivatives"
+        try:
+            if not self.can_interpolate_inputs:
+                return ERROR, f"{where}: this FMU does not interpolate inputs (canInterpolateInputs = false)"
+            staged: dict[str, dict[int, float]] = {}
+            for vr, order, value in zip(vrs, orders, values):
+                name = self._real_inputs.get(vr)
+                if name is None:
+                    return ERROR, f"{where}: {self._describe_vr(vr)} is not a Real input"
+                if not 1 <= order <= self.max_input_derivative_order:
+                    return ERROR, (f"{where}: order {order} for input {name} is not in 1.."
+                                   f"{self.max_input_derivative_order}")
+                if not math.isfinite(value):
+                    return ERROR, f"{where}: derivative of order {order} of input {name} = {value} is not finite"
+                staged.setdefault(name, {})[order] = float(value)
+            for name, derivatives in staged.items():
+                self.input_derivatives.setdefault(name, {}).update(derivatives)
+            return OK, ""
+        except Exception as exc:                                      # noqa: BLE001 - reported, never raised
+            return ERROR, f"{where} failed: {type(exc).__name__}: {exc}"
+
+    def fmi2_get_real_output_derivatives(self, vrs: list[int], orders: list[int]) -> tuple[int, list[float], str]:
+        """d^order(output)/dt^order at the current communication point, from the hook
+        `output_derivative`. Returns (fmi2Status, values, message)."""
+        where = f"{self.model_identifier}: fmi2GetRealOutputDerivatives"
+        name, order = "", 0
+        try:
+            requests = []
+            for vr, order in zip(vrs, orders):
+                var = self._variable(vr)
+                if var is None or var.causality != "output":
+                    return ERROR, [], f"{where}: {self._describe_vr(vr)} is not a Real output"
+                if not 1 <= order <= self.max_output_derivative_order:
+                    return ERROR, [], (f"{where}: order {order} for output {var.name} is not in 1.."
+                                       f"{self.max_output_derivative_order} (maxOutputDerivativeOrder)")
+                requests.append((var.name, order))
+            values = []
+            for name, order in requests:
+                value = float(self.output_derivative(name, order))
+                if not math.isfinite(value):
+                    return ERROR, [], f"{where}: derivative of order {order} of {name} = {value} is not finite"
+                values.append(value)
+            return OK, values, ""
+        except (ValueError, ArithmeticError) as exc:
+            return ERROR, [], f"{where}: derivative of order {order} of {name}: {exc}"
+        except Exception as exc:                                      # noqa: BLE001 - reported, never raised
+            return ERROR, [], f"{where} failed: {type(exc).__name__}: {exc}"
+
+    def fmi2_get_directional_derivative(self, unknowns: list[int], knowns: list[int],
+                                        seeds: list[float]) -> tuple[int, list[float], str]:
+        """sum_j d(unknown_i)/d(known_j) seeds_j for outputs (unknowns) with respect to inputs (knowns),
+        from the hook `directional_derivative`. Returns (fmi2Status, values, message)."""
+        where = f"{self.model_identifier}: fmi2GetDirectionalDerivative"
+        try:
+            if not self.provides_directional_derivative:
+                return ERROR, [], f"{where}: not provided by this FMU (providesDirectionalDerivative = false)"
+            unknown_names, known_names = [], []
+            for vr in unknowns:
+                var = self._variable(vr)
+                if var is None or var.causality != "output":
+                    return ERROR, [], f"{where}: unknown {self._describe_vr(vr)} is not a Real output"
+                unknown_names.append(var.name)
+            for vr, seed in zip(knowns, seeds):
+                name = self._real_inputs.get(vr)
+                if name is None:
+                    return ERROR, [], f"{where}: known {self._describe_vr(vr)} is not a Real input"
+                if not math.isfinite(seed):
+                    return ERROR, [], f"{where}: seed {seed} for input {name} is not finite"
+                known_names.append(name)
+            values = [float(v) for v in self.directional_derivative(unknown_names, known_names, [float(x) for x in seeds])]
+            if len(values) != len(unknown_names):
+                return ERROR, [], f"{where}: {len(values)} values for {len(unknown_names)} unknowns"
+            for name, value in zip(unknown_names, values):
+                if not math.isfinite(value):
+                    return ERROR, [], f"{where}: directional derivative of {name} = {value} is not finite"
+            return OK, values, ""
+        except (ValueError, ArithmeticError) as exc:
+            return ERROR, [], f"{where}: {exc}"
+        except Exception as exc:                                      # noqa: BLE001 - reported, never raised
+            return ERROR, [], f"{where} failed: {type(exc).__name__}: {exc}"
+
+    def output_derivative(self, name: str, order: int) -> float:
+        """Hook: d^order(output `name`)/dt^order at the current communication point. Raise ValueError
+        (or ArithmeticError) with the reason when it cannot be computed."""
+        raise ValueError(f"output derivatives are not provided by {self.model_identifier}")
+
+    def directional_derivative(self, unknowns: list[str], knowns: list[str], seeds: list[float]) -> list[float]:
+        """Hook: for each output in `unknowns`, sum_j d(output)/d(knowns_j) * seeds_j."""
+        raise ValueError(f"directional derivatives are not provided by {self.model_identifier}")
+
+    def _variable(self, vr: int) -> Variable | None:
+        return self.variables[vr] if isinstance(vr, int) and 0 <= vr < len(self.variables) else None
+
+    def _describe_vr(self, vr: int) -> str:
+        var = self._variable(vr)
+        return f"valueReference {vr} ({var.causality} {var.name})" if var is not None else f"valueReference {vr} (unknown)"
 
     # ---- modelDescription ------------------------------------------------------------------------
     def to_xml(self, model_options=dict()):
@@ -497,21 +539,15 @@ class EMSlave(Fmi2Slave):
                     attrib["dependencies"] = " ".join(str(index[d]) for d in sorted(v.initial_deps, key=index.get))
                 SubElement(node, "Unknown", attrib)
 
-        # a GUID that changes exactly when the description or the bundled sources change
-        root.set("guid", "")
-        root.set("guid", "{%s}" % uuid.uuid5(uuid.NAMESPACE_URL, "emcosim:" + self._content_digest(root)))
-        return root
+        # FMI 2.0 derivatives (answered by the loader)
+        cosim = root.find("CoSimulation")
+        cosim.set("canInterpolateInputs", str(self.can_interpolate_inputs).lower())
+        cosim.set("maxOutputDerivativeOrder", str(int(self.max_output_derivative_order)))
+        cosim.set("providesDirectionalDerivative", str(self.provides_directional_derivative).lower())
 
-    def _content_digest(self, root: Element) -> str:
-        from xml.etree.ElementTree import tostring
-        digest = hashlib.sha256(tostring(root))
-        if self.resources:
-            resources = Path(self.resources)
-            for name in SHARED_MODULES:
-                for candidate in (resources / name, resources / (name + ".py")):
-                    if candidate.exists():
-                        digest.update(_tree_hash(candidate).encode())
-            script = resources / (type(self).__module__ + ".py")
-            if script.exists():
-                digest.update(script.read_bytes())
-        return digest.hexdigest()
+        # a GUID that changes exactly when the description or the build (every source, pythonfmu, the
+        # loader, the Python recorded) changes
+        root.set("guid", "")
+        digest = hashlib.sha256(tostring(root) + BUILD.encode()).hexdigest()
+        root.set("guid", "{%s}" % uuid.uuid5(uuid.NAMESPACE_URL, "emcosim:" + digest))
+        return root

@@ -12,10 +12,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from components import catalog
-from components.ph_plant import DomainError, EMPlant
-from components.plant_step import DEFAULT_RTOL, PlantStepper, StepFailure
-from em_fmu_framework import EMSlave
+from .components import catalog
+from .components.ph_plant import DomainError, EMPlant
+from .components.plant_step import DEFAULT_RTOL, PlantStepper, StepFailure
+from .em_fmu_framework import EMSlave
 
 STATE_NAMES = ("q", "p", "x_e")
 

@@ -6,8 +6,8 @@ reference jet (q*, q*', q*'', q*''') at the current communication point; they de
 """
 from __future__ import annotations
 
-from components import catalog, references
-from em_fmu_framework import REFERENCE_JET, EMSlave
+from .components import catalog, references
+from .em_fmu_framework import REFERENCE_JET, EMSlave
 
 KIND_CODES = catalog.REFERENCE_KINDS
 OUTPUTS = REFERENCE_JET

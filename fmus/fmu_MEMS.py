@@ -4,11 +4,8 @@ Default experiment: open-loop response to a constant 25 V from the paper's initi
 (q, p, x_e) = (15e-6 m, 0, 0): the electrode is pulled to its static equilibrium and rings
 (damping ratio ~0.01).
 """
-from components import mems
-from em_fmu_plant import PlantSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .components import mems
+from .em_fmu_plant import PlantSlave
 
 
 class MEMS(PlantSlave):

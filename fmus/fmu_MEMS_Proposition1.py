@@ -1,9 +1,6 @@
 """FMU MEMS_Proposition1: set-point regulation of the MEMS switch by Proposition 1, eq. (c1)."""
-from components import mems
-from em_fmu_controller import ControllerSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .components import mems
+from .em_fmu_controller import ControllerSlave
 
 
 class MEMS_Proposition1(ControllerSlave):

@@ -1,9 +1,6 @@
 """FMU MEMS_Theorem2: tracking (and regulation) of the MEMS switch by Theorem 2, eq. (u1-track)."""
-from components import mems
-from em_fmu_controller import ControllerSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .components import mems
+from .em_fmu_controller import ControllerSlave
 
 
 class MEMS_Theorem2(ControllerSlave):

@@ -4,11 +4,8 @@ The paper gives no maglev initial state (erratum 7): the default is the equilibr
 (half way to the magnet at c = 0.005 m), eta = (0.0025, 0, sqrt(2 k b)). Default experiment: the open
 loop is unstable; with the coil voltage held at 0 V the flux decays and the ball falls.
 """
-from components import maglev
-from em_fmu_plant import PlantSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .components import maglev
+from .em_fmu_plant import PlantSlave
 
 Q_START = 0.0025
 

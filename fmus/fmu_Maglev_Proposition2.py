@@ -1,9 +1,6 @@
 """FMU Maglev_Proposition2: set-point regulation of the maglev by Proposition 2, eq. (u2)."""
-from components import maglev
-from em_fmu_controller import ControllerSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .components import maglev
+from .em_fmu_controller import ControllerSlave
 
 EQUILIBRIUM = tuple(float(v) for v in maglev.Maglev().equilibrium([0.0025]))
 

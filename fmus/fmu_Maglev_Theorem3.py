@@ -1,9 +1,6 @@
 """FMU Maglev_Theorem3: tracking of the maglev by Theorem 3, eq. (tracker2)."""
-from components import maglev
-from em_fmu_controller import ControllerSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .components import maglev
+from .em_fmu_controller import ControllerSlave
 
 EQUILIBRIUM = tuple(float(v) for v in maglev.Maglev().equilibrium([0.0025]))
 

@@ -2,10 +2,7 @@
 
 Default experiment: the paper's MEMS tracking reference q* = 0.05 + 0.05 sin(30 t) (eq. csim), kind 1.
 """
-from em_fmu_reference import ReferenceSlave
-from em_fmu_framework import hold_script_globals
-
-hold_script_globals(globals())
+from .em_fmu_reference import ReferenceSlave
 
 
 class Reference(ReferenceSlave):

@@ -3,10 +3,8 @@ Used by tests/test_c_host.py and benchmarks/bench_fmus.py."""
 from __future__ import annotations
 
 import math
-import os
 import shutil
 import subprocess
-import sysconfig
 import zipfile
 from pathlib import Path
 
@@ -14,48 +12,53 @@ from fmpy import read_model_description
 
 SOURCE = Path(__file__).parent / "fixtures" / "c_host.c"
 LOOP_SOURCE = Path(__file__).parent / "fixtures" / "c_loop.c"
+CALLS_SOURCE = Path(__file__).parent / "fixtures" / "c_calls.c"
+TOYS = Path(__file__).parent / "fixtures" / "emcosim_toy_derivatives.py"
+_TOYS: dict[str, Path] = {}
 
 
-def libpython() -> Path | None:
-    """The shared libpython of this interpreter (pythonfmu's library expects the host to provide it)."""
-    lib = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("LDLIBRARY") or "")
-    return lib if sysconfig.get_config_var("Py_ENABLE_SHARED") and lib.is_file() else None
+def toy_fmus(folder: Path) -> dict[str, Path]:
+    """The FMUs of tests/fixtures/emcosim_toy_derivatives.py (known derivatives), built once per test
+    session with build.build_fmus into `folder` (the first caller's)."""
+    if not _TOYS:
+        import build
+        _TOYS.update(build.build_fmus({"DerivativeIntegrator": TOYS, "DerivativeGain": TOYS}, folder))
+    return dict(_TOYS)
 
 
 def compile_c_host(exe: Path, source: Path = SOURCE) -> str | None:
-    """Compile the C host (or another C master of tests/fixtures) to `exe`; None, or why it cannot be
-    built here."""
-    if shutil.which("gcc") is None or libpython() is None:
-        return "needs gcc and a shared libpython"
+    """Compile the C host (or another C master of tests/fixtures) to `exe`: plain C, linked with libdl and
+    libm only (no libpython: the FMU's loader starts Python itself). None, or why it cannot be built here."""
+    if shutil.which("gcc") is None:
+        return "needs gcc"
     import fmpy
 
-    libdir = str(libpython().parent)
     subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"), str(source),
-                    "-o", str(exe), "-ldl", "-lm", "-Wl,--no-as-needed", f"-L{libdir}",
-                    f"-lpython{sysconfig.get_config_var('LDVERSION')}", f"-Wl,-rpath,{libdir}"],
-                   check=True, capture_output=True)
+                    "-o", str(exe), "-ldl", "-lm"], check=True, capture_output=True)
     return None
 
 
 def run_in_c_host(exe: Path, fmu: Path, workdir: Path, inputs: dict[str, float], outputs: list[str], h: float,
-                  n: int, unload: bool = False) -> tuple[subprocess.CompletedProcess, list[float]]:
+                  n: int, unload: bool = False, env: dict[str, str] | None = None
+                  ) -> tuple[subprocess.CompletedProcess, list[float]]:
     """Run the C host on an FMU (extracted into `workdir`); returns the process and the values it printed:
     median ns of set + doStep + get, median ns of doStep alone, then the outputs of the last step."""
     identifier, folder, vr = _extracted(fmu, workdir)
     args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
             (folder / "resources").as_uri(), repr(h), str(n), str(len(inputs)), *(str(vr[k]) for k in inputs),
             str(len(outputs)), *(str(vr[k]) for k in outputs), *(repr(v) for v in inputs.values())]
-    return _run(args, unload)
+    return _run(args, unload, env)
 
 
-def _run(args: list[str], unload: bool = False) -> tuple[subprocess.CompletedProcess, list[float]]:
-    """Run a C master with this environment's site-packages for pythonfmu's interpreter; the values it
-    printed (empty if it failed)."""
-    env = dict(os.environ, PYTHONPATH=sysconfig.get_paths()["purelib"])
-    env.pop("C_HOST_UNLOAD", None)
+def _run(args: list[str], unload: bool = False, env: dict[str, str] | None = None
+         ) -> tuple[subprocess.CompletedProcess, list[float]]:
+    """Run a C master with an empty environment (`env -i`: no PYTHONHOME, PYTHONPATH or preload; the FMUs
+    find their Python themselves), plus `env`; the values it printed (empty if it failed)."""
+    env = dict(env or {})
     if unload:
         env["C_HOST_UNLOAD"] = "1"
-    run = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
+    command = ["env", "-i", *(f"{k}={v}" for k, v in env.items()), *args]
+    run = subprocess.run(command, capture_output=True, text=True, timeout=300)
     return run, ([float(x) for x in run.stdout.split()] if run.returncode == 0 else [])
 
 
@@ -81,6 +84,26 @@ def run_loop_in_c_host(exe: Path, plant_fmu: Path, controller_fmu: Path, workdir
         vrs.append(vr)
     args += [repr(h), str(n)] + [str(vrs[0][k]) for k in ("u", "q", "p", "x_e")] + [str(vrs[1][k]) for k in ("q", "p", "x_e", "u")]
     return _run(args)
+
+
+def run_calls(exe: Path, folder: Path, calls: list[str], env: dict[str, str] | None = None
+              ) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
+    """Run the C host of tests/fixtures/c_calls.c on an extracted FMU (`folder`, see `extract`) with an
+    empty environment plus `env`; returns the process and its output lines split into words."""
+    md = read_model_description(str(folder / "modelDescription.xml"))
+    identifier = md.coSimulation.modelIdentifier
+    args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
+            (folder / "resources").as_uri(), md.guid, *calls]
+    env = dict(env or {})
+    run = subprocess.run(["env", "-i", *(f"{k}={v}" for k, v in env.items()), *args], capture_output=True,
+                         text=True, timeout=300)
+    return run, [line.split() for line in run.stdout.splitlines()]
+
+
+def extract(fmu: Path, workdir: Path) -> tuple[Path, dict[str, int]]:
+    """Unzip an FMU into workdir/<model identifier>; (folder, variable name -> value reference)."""
+    _, folder, vr = _extracted(fmu, workdir)
+    return folder, vr
 
 
 def last_inputs(start: dict[str, float], n: int) -> list[float]:

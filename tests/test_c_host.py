@@ -1,15 +1,23 @@
-"""The FMUs in a C host (tests/fixtures/c_host.c): no Python on the caller's side, the interpreter is
-the one pythonfmu starts, as in Simulink, OpenModelica or libcosim. Each FMU runs, its outputs equal
-components/ for the same inputs, and the host process exits with status 0.
+"""The FMUs in C hosts (tests/fixtures/c_host.c, c_loop.c, c_calls.c) started with an empty environment
+(`env -i`: no libpython linked or preloaded, no PYTHONHOME or PYTHONPATH), as Simulink, OpenModelica or
+libcosim load them: the FMU's loader starts the Python that build.py recorded. Each FMU runs, its outputs
+equal components/ for the same inputs, and the host process exits with status 0. The derivative
+functions, the recorded Python (moved away: one message; EMCOSIM_FMU_PYTHON) and the loader's binary
+are checked here too.
 
-Before `em_fmu_framework.finalize_python_at_exit`, most C-host processes crashed at exit (SIGSEGV in
-Py_Finalize, which pythonfmu 0.7.0 ran after numpy's libraries had shut down; docs/reliability.md,
-finding 1): 10 of 12 runs of MEMS_Proposition1 here. Each FMU runs twice, once with dlclose
-before exit, once without.
+Before the exit handler the loader registers (pythonfmu's finalizePythonInterpreter, registered right
+after its library is loaded), most C-host processes crashed at exit (SIGSEGV in Py_Finalize, which
+pythonfmu 0.7.0 ran after numpy's libraries had shut down; docs/reliability.md, finding 1): 10 of 12
+runs of MEMS_Proposition1 here. Each controller runs twice, once with dlclose before exit, once without.
 """
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -18,7 +26,8 @@ from fmpy import read_model_description
 from components import catalog, maglev, mems, references
 from components.plant_step import PlantStepper
 
-from .c_host import LOOP_SOURCE, CONTROLLER_INPUTS, compile_c_host, last_inputs, run_in_c_host, run_loop_in_c_host
+from .c_host import (CALLS_SOURCE, LOOP_SOURCE, CONTROLLER_INPUTS, compile_c_host, extract, last_inputs, run_calls,
+                     run_in_c_host, run_loop_in_c_host, toy_fmus)
 
 N = 200
 
@@ -98,3 +107,116 @@ def test_closed_loop_of_two_fmus_in_c_host_equals_components(c_loop, fmus, tmp_p
         u = controller.u_scalar(*eta, None)
         eta = stepper.advance(*eta, u, h)
     assert values == pytest.approx([*eta, u], rel=1e-12, abs=0.0)
+
+
+# ---- the loader --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def c_calls(tmp_path_factory) -> Path:
+    exe = tmp_path_factory.mktemp("c_calls") / "c_calls"
+    reason = compile_c_host(exe, CALLS_SOURCE)
+    if reason:
+        pytest.skip(reason)
+    return exe
+
+
+@pytest.fixture(scope="module")
+def toys(tmp_path_factory) -> dict[str, Path]:
+    return toy_fmus(tmp_path_factory.mktemp("toys"))
+
+
+def test_fmu_binary_links_no_python(fmus, tmp_path):
+    """The FMU's binary needs libc only: no libpython among its needed libraries, no undefined Python
+    symbol (what made a plain C host fail at dlopen before)."""
+    folder, _ = extract(fmus["MEMS"], tmp_path)
+    binary = folder / "binaries" / "linux64" / "MEMS.so"
+    needed = subprocess.run(["readelf", "-d", str(binary)], capture_output=True, text=True, check=True).stdout
+    assert [line.split("[")[1].rstrip("]") for line in needed.splitlines() if "(NEEDED)" in line] == ["libc.so.6"]
+    undefined = subprocess.run(["nm", "-D", "--undefined-only", str(binary)], capture_output=True, text=True,
+                               check=True).stdout.split()
+    assert not [name for name in undefined if name.startswith(("Py", "_Py"))]
+
+
+def _statuses(lines: list[list[str]]) -> list[tuple[str, int]]:
+    return [(words[0], int(words[1])) for words in lines if len(words) > 1 and words[0] != "inst"]
+
+
+def test_derivative_functions_in_c_host(c_calls, toys, tmp_path):
+    """fmi2SetRealInputDerivatives, fmi2GetRealOutputDerivatives and fmi2GetDirectionalDerivative from C:
+    the toy integrator's polynomial input and output derivatives, the toy gain's Jacobian (known answers,
+    tests/fixtures/emcosim_toy_derivatives.py); a bad order is refused with fmi2Error and a message."""
+    folder, vr = extract(toys["DerivativeIntegrator"], tmp_path)
+    u, x = vr["u"], vr["x"]
+    run, lines = run_calls(c_calls, folder, ["inst", "init", "setr", str(u), "2", "dset", str(u), "1", "3",
+                                             "dset", str(u), "2", "4", "step", "0", "0.5", "getr", str(x),
+                                             "dget", str(x), "1", "dget", str(x), "2", "dset", str(u), "3", "1",
+                                             "step", "0.5", "0.5", "getr", str(x), "free"])
+    assert run.returncode == 0, run.stderr[-1500:]
+    assert lines[0] == ["inst", "0"]
+    assert [status for _, status in _statuses(lines)] == [0, 0, 0, 0, 0, 0, 0, 0, 3, 0, 0]
+    x1 = 1.0 + 2.0 * 0.5 + 3.0 * 0.5**2 / 2 + 4.0 * 0.5**3 / 6
+    assert float(lines[6][2]) == pytest.approx(x1, rel=1e-15)
+    assert [float(lines[7][2]), float(lines[8][2])] == [2.0 + 1.5 + 0.5, 3.0 + 2.0]
+    assert float(lines[11][2]) == pytest.approx(x1 + 2.0 * 0.5, rel=1e-15)     # held u = 2, derivatives cleared
+    assert "order 3 for input u is not in 1..2" in run.stderr
+    folder, vr = extract(toys["DerivativeGain"], tmp_path)
+    x, y = vr["x"], vr["y"]
+    run, lines = run_calls(c_calls, folder, ["inst", "init", "jac", str(y), str(x), "2", "dset", str(x), "1", "7",
+                                             "dget", str(y), "1", "jac", str(x), str(y), "1", "free"])
+    assert run.returncode == 0, run.stderr[-1500:]
+    assert lines[2:5] == [["jac", "0", "6"], ["dset", "0"], ["dget", "0", "21"]]     # k = 3
+    assert lines[5][:2] == ["jac", "3"] and "unknown valueReference 1 (input x) is not a Real output" in run.stderr
+
+
+# ---- the recorded Python -------------------------------------------------------------------------------
+def _throwaway_python(where: Path, with_numpy: bool = True) -> Path:
+    """A new venv (quick: no pip) whose site-packages see this environment's packages through a .pth file
+    when `with_numpy` (numpy and scipy); returns its interpreter."""
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(where)], check=True, capture_output=True)
+    minor = "python{}.{}".format(*sys.version_info[:2])
+    if with_numpy:
+        (where / "lib" / minor / "site-packages" / "environment.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    return where / "bin" / "python"
+
+
+def _record(folder: Path, **changes: str) -> None:
+    path = folder / "resources" / "emcosim_fmu.txt"
+    lines = [f"{line.split(' = ')[0]} = {changes[line.split(' = ')[0]]}" if line.split(" = ")[0] in changes else line
+             for line in path.read_text().splitlines()]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _logged(stderr: str) -> list[str]:
+    """The lines the FMU logged through the host's logger (c_calls.c prints them as "[instance] status ...")."""
+    return [line for line in stderr.splitlines() if line.startswith("[")]
+
+
+def test_recorded_python_is_used_and_a_missing_one_is_named_in_one_message(c_calls, fmus, tmp_path):
+    """An FMU pointed at a throwaway venv runs from it in a C host under env -i; with that venv moved away,
+    fmi2Instantiate returns NULL and logs one message naming the missing interpreter and the variable to
+    set (no crash, no loader error); EMCOSIM_FMU_PYTHON set to a working interpreter fixes it."""
+    folder, vr = extract(fmus["MEMS_Proposition1"], tmp_path)
+    python = _throwaway_python(tmp_path / "throwaway")
+    _record(folder, python_executable=str(python))
+    calls = ["inst", "init", "setr", str(vr["q"]), "2e-5", "getr", str(vr["u"]), "free"]
+    run, lines = run_calls(c_calls, folder, calls)
+    assert run.returncode == 0 and lines[0] == ["inst", "0"], run.stderr[-1500:]
+    u = float(lines[3][2])
+    (tmp_path / "throwaway").rename(tmp_path / "moved")
+    run, lines = run_calls(c_calls, folder, calls[:1])
+    assert run.returncode == 0 and lines == [["inst", "null"]], run.stderr[-1500:]
+    logged = _logged(run.stderr)
+    assert len(logged) == 1 and run.stderr.strip() == logged[0], run.stderr
+    assert str(python) in logged[0] and "EMCOSIM_FMU_PYTHON" in logged[0] and "does not exist" in logged[0]
+    assert " 3 logStatusError: " in logged[0]                               # fmi2Error
+    run, lines = run_calls(c_calls, folder, calls, env={"EMCOSIM_FMU_PYTHON": sys.executable})
+    assert run.returncode == 0 and lines[0] == ["inst", "0"] and float(lines[3][2]) == u, run.stderr[-1500:]
+
+
+def test_python_without_numpy_is_named_in_one_message(c_calls, fmus, tmp_path):
+    folder, _ = extract(fmus["Reference"], tmp_path)
+    python = _throwaway_python(tmp_path / "bare", with_numpy=False)
+    run, lines = run_calls(c_calls, folder, ["inst"], env={"EMCOSIM_FMU_PYTHON": str(python)})
+    assert run.returncode == 0 and lines == [["inst", "null"]], run.stderr[-1500:]
+    logged = _logged(run.stderr)
+    assert len(logged) == 1 and run.stderr.strip() == logged[0], run.stderr
+    assert all(w in logged[0] for w in (str(python), "cannot import numpy", "EMCOSIM_FMU_PYTHON")), logged[0]

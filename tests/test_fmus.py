@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -32,7 +33,7 @@ CONTROLLERS = {"MEMS_Proposition1": mems, "MEMS_Theorem2": mems, "Maglev_Proposi
                "Maglev_Theorem3": maglev}
 TRACKING = {"MEMS_Theorem2", "Maglev_Theorem3"}
 ALL = list(PLANTS) + list(CONTROLLERS) + ["Reference"]
-OK, DISCARD, FATAL = 0, 2, 4
+OK, DISCARD, ERROR, FATAL = 0, 2, 3, 4
 JET = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
 
 
@@ -513,6 +514,219 @@ def test_infeasible_reference_is_reported(fmus):
     ctrl.free()
 
 
+# ---- collisions with other Python FMUs in one process ------------------------------------------------
+FOREIGN = Path(__file__).parent / "fixtures" / "foreign"
+
+# Runs in a fresh Python process (the Python host: fmpy): instantiates, initializes and steps each FMU given,
+# in order; prints one JSON line per FMU: instantiated?, its first output after one step, the log messages.
+RUN_IN_ORDER = r"""
+import json, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+from fmpy import calloc, free
+keep = []
+for path in sys.argv[1:]:
+    md = read_model_description(path)
+    messages = []
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg, m=messages: m.append([status, msg.decode()]))
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier)
+    keep.append((fmu, cb))
+    try:
+        fmu.instantiate(callbacks=cb, loggingOn=True)
+    except Exception:
+        print(json.dumps({"instantiated": False, "messages": messages}), flush=True)
+        continue
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 1e-6)
+    output = [v.valueReference for v in md.modelVariables if v.causality == "output"][0]
+    print(json.dumps({"instantiated": True, "output": fmu.getReal([output])[0], "messages": messages}), flush=True)
+for fmu, _ in keep:
+    if fmu.component is not None:
+        fmu.fmi2FreeInstance(fmu.component)
+"""
+
+
+def _run_in_order(*fmus: Path) -> list[dict]:
+    import json
+    run = subprocess.run([sys.executable, "-c", RUN_IN_ORDER, *map(str, fmus)], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, f"exit status {run.returncode}: {run.stderr[-1500:]}"
+    return [json.loads(line) for line in run.stdout.splitlines()]
+
+
+def _foreign_fmu(tmp_path: Path, script_name: str) -> Path:
+    """The foreign pythonfmu FMU of tests/fixtures/foreign, its script named `script_name`, built by
+    pythonfmu's own builder in another process (it imports the script and its `components`)."""
+    src = tmp_path / "foreign_src"
+    shutil.copytree(FOREIGN, src, ignore=shutil.ignore_patterns("__pycache__"))
+    (src / "fmu_MEMS.py").rename(src / f"{script_name}.py")
+    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(src / f"{script_name}.py"), "-d",
+                    str(tmp_path), str(src / "components")], check=True, capture_output=True, cwd=tmp_path)
+    return tmp_path / "ForeignMEMS.fmu"
+
+
+def test_foreign_fmu_named_like_ours_loaded_first_does_not_disturb_ours(fmus, tmp_path):
+    """A pythonfmu FMU of another vendor whose script is fmu_MEMS.py (emcosim's name before build tags) and
+    which bundles its own `components`, instantiated first: emcosim's MEMS then runs as alone (it used to
+    crash the host in fmi2Instantiate), and the foreign one too."""
+    foreign = _foreign_fmu(tmp_path, "fmu_MEMS")
+    alone = _run_in_order(fmus["MEMS"])
+    both = _run_in_order(foreign, fmus["MEMS"])
+    assert [r["instantiated"] for r in both] == [True, True], both
+    assert both[0]["output"] == 2.0 * 1e-6 and both[1]["output"] == alone[0]["output"]
+
+
+def test_fmus_of_one_build_share_their_bundle_after_the_first_folder_is_gone(fmus):
+    """FMUs of one build share one bundle package in a process. fmpy's simulate deletes an FMU's unzip
+    folder after the run; the next FMU of the build finds the modules not imported yet in its own copy."""
+    code = ("import sys\nfrom fmpy import simulate_fmu\n"
+            "for path in sys.argv[1:]:\n    print(len(simulate_fmu(path, stop_time=0.01, output_interval=1e-3)))\n")
+    run = subprocess.run([sys.executable, "-c", code, str(fmus["MEMS"]), str(fmus["Reference"]),
+                          str(fmus["Maglev_Theorem3"])], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-1500:]
+    assert run.stdout.split() == ["11", "11", "11"]
+
+
+def test_module_of_our_name_loaded_by_another_fmu_is_refused_in_one_message(fmus, tmp_path):
+    """A foreign FMU whose script has exactly the name of MEMS.fmu's script (emcosim_fmu_<tag>_MEMS),
+    instantiated first: MEMS.fmu refuses to instantiate (NULL) with one fmi2Error message naming the
+    module, before any of pythonfmu's code runs; the foreign FMU keeps working."""
+    with zipfile.ZipFile(fmus["MEMS"]) as z:
+        script = z.read("resources/slavemodule.txt").decode()
+    foreign = _foreign_fmu(tmp_path, script)
+    results = _run_in_order(foreign, fmus["MEMS"], foreign)
+    assert [r["instantiated"] for r in results] == [True, False, True], results
+    assert results[2]["output"] == 2.0 * 1e-6
+    messages = results[1]["messages"]
+    assert len(messages) == 1 and messages[0][0] == ERROR, messages
+    assert f"module {script} is already loaded" in messages[0][1] and "not this FMU's" in messages[0][1]
+
+
+# ---- FMI 2.0 derivative functions (answered by the loader, emcosim_fmu_loader.c) ------------------------
+@pytest.fixture(scope="session")
+def toys(tmp_path_factory) -> dict[str, Path]:
+    from .c_host import toy_fmus
+    return toy_fmus(tmp_path_factory.mktemp("toys"))
+
+
+
+@pytest.mark.parametrize("identifier", ["DerivativeIntegrator", "DerivativeGain"])
+def test_toy_capabilities_are_declared_and_valid(toys, identifier):
+    cs = read_model_description(str(toys[identifier])).coSimulation
+    expected = {"DerivativeIntegrator": (True, 2, False), "DerivativeGain": (True, 1, True)}[identifier]
+    assert (cs.canInterpolateInputs, cs.maxOutputDerivativeOrder, cs.providesDirectionalDerivative) == expected
+    assert validate_fmu(str(toys[identifier])) == []
+
+
+def test_input_derivatives_make_a_polynomial_input_and_output_derivatives_follow(toys):
+    """x' = u with u(t + tau) = u + u' tau + u'' tau^2/2: x(h) = x0 + u h + u' h^2/2 + u'' h^3/6 exactly; the
+    input derivatives hold for one step (cleared by doStep); x' and x'' are the polynomial's u and u' at
+    the end of the step until u is set again."""
+    slave = Slave(toys["DerivativeIntegrator"])
+    assert slave.init() == OK
+    u, x = slave.vr["u"], slave.vr["x"]
+    slave.set(u=2.0)
+    slave.fmu.setRealInputDerivatives([u], [1], [3.0])
+    slave.fmu.setRealInputDerivatives([u], [2], [4.0])
+    assert slave.fmu.getRealOutputDerivatives([x, x], [1, 2]) == [2.0, 3.0]      # at t = 0: u and u' as set
+    assert slave.step(0.0, 0.5) == OK
+    assert slave.get("x") == pytest.approx([1.0 + 2.0 * 0.5 + 3.0 * 0.5**2 / 2 + 4.0 * 0.5**3 / 6], rel=1e-15)
+    assert slave.fmu.getRealOutputDerivatives([x, x], [1, 2]) == [2.0 + 3.0 * 0.5 + 4.0 * 0.5**2 / 2, 3.0 + 4.0 * 0.5]
+    before = slave.get("x")[0]
+    assert slave.step(0.5, 0.5) == OK                     # derivatives cleared: u = 2 held over the step
+    assert slave.get("x") == pytest.approx([before + 2.0 * 0.5], rel=1e-15)
+    slave.set(u=-1.0)
+    assert slave.fmu.getRealOutputDerivatives([x], [1]) == [-1.0]
+    assert slave.errors() == ""
+    slave.free()
+
+
+@pytest.mark.parametrize("call, words", [
+    (lambda f, vr: f.setRealInputDerivatives([vr["u"]], [3], [1.0]), ["order 3", "input u", "1..2"]),
+    (lambda f, vr: f.setRealInputDerivatives([vr["u"]], [0], [1.0]), ["order 0", "input u"]),
+    (lambda f, vr: f.setRealInputDerivatives([vr["x"]], [1], [1.0]), ["valueReference 2", "output x", "not a Real input"]),
+    (lambda f, vr: f.setRealInputDerivatives([vr["u"]], [1], [math.nan]), ["input u", "not finite"]),
+    (lambda f, vr: f.getRealOutputDerivatives([vr["x"]], [3]), ["order 3", "output x", "maxOutputDerivativeOrder"]),
+    (lambda f, vr: f.getRealOutputDerivatives([7], [1]), ["valueReference 7 (unknown)"]),
+    (lambda f, vr: f.getDirectionalDerivative([vr["x"]], [vr["u"]], [1.0]), ["providesDirectionalDerivative = false"]),
+])
+def test_derivative_calls_with_bad_arguments_return_error_and_leave_the_instance_usable(toys, call, words):
+    slave = Slave(toys["DerivativeIntegrator"])
+    assert slave.init() == OK
+    slave.fmu.setRealInputDerivatives([slave.vr["u"]], [1], [5.0])
+    with pytest.raises(FMICallException) as info:
+        call(slave.fmu, slave.vr)
+    assert info.value.status == ERROR
+    assert all(w in slave.errors() for w in words), slave.errors()
+    slave.set(u=1.0)                                      # the valid derivative set before still holds
+    assert slave.step(0.0, 0.5) == OK and slave.get("x") == pytest.approx([1.0 + 0.5 + 5.0 * 0.25 / 2], rel=1e-15)
+    slave.free()
+
+
+def test_directional_and_output_derivatives_of_a_gain(toys):
+    slave = Slave(toys["DerivativeGain"])
+    assert slave.init(k=5.0) == OK
+    x, y = slave.vr["x"], slave.vr["y"]
+    assert slave.fmu.getDirectionalDerivative([y], [x], [2.0]) == [10.0]
+    slave.fmu.setRealInputDerivatives([x], [1], [7.0])
+    assert slave.fmu.getRealOutputDerivatives([y], [1]) == [35.0]
+    assert slave.step(0.0, 0.1) == OK
+    assert slave.fmu.getRealOutputDerivatives([y], [1]) == [0.0]            # x' cleared by doStep: x constant
+    slave.free()
+
+
+def test_input_derivatives_are_part_of_the_fmu_state(toys):
+    slave = Slave(toys["DerivativeIntegrator"])
+    assert slave.init() == OK
+    u = slave.vr["u"]
+    slave.set(u=2.0)
+    slave.fmu.setRealInputDerivatives([u], [1], [3.0])
+    state = slave.fmu.getFMUstate()
+    serialized = slave.fmu.serializeFMUstate(state)
+    assert slave.step(0.0, 0.5) == OK
+    first = slave.get("x")
+    for restored in (state, slave.fmu.deSerializeFMUstate(serialized)):
+        slave.fmu.setFMUstate(restored)
+        assert slave.step(0.0, 0.5) == OK and slave.get("x") == first
+    assert first == pytest.approx([1.0 + 1.0 + 3.0 * 0.125], rel=1e-15)
+    slave.free()
+
+
+@pytest.mark.parametrize("identifier", ALL)
+def test_declared_derivative_capabilities_answer_and_undeclared_ones_refuse(fmus, identifier):
+    """What modelDescription.xml declares, the FMU answers (fmi2OK, finite values at the default state);
+    what it does not declare is refused with fmi2Error and a message naming the attribute."""
+    slave = Slave(fmus[identifier])
+    cs, md = slave.md.coSimulation, slave.md
+    assert slave.init() == OK
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    inputs = [v.valueReference for v in md.modelVariables if v.causality == "input"]
+    calls = {                              # attribute: (declared, call); calls about inputs need an input
+        "maxOutputDerivativeOrder": (cs.maxOutputDerivativeOrder > 0,
+                                     lambda: slave.fmu.getRealOutputDerivatives(outputs, [1] * len(outputs))),
+    }
+    if inputs:
+        calls["providesDirectionalDerivative"] = (cs.providesDirectionalDerivative,
+                                                  lambda: slave.fmu.getDirectionalDerivative(outputs, inputs[:1], [1.0]))
+        calls["canInterpolateInputs"] = (cs.canInterpolateInputs,
+                                         lambda: slave.fmu.setRealInputDerivatives(inputs[:1], [1], [0.0]))
+    for attribute, (declared, call) in calls.items():
+        slave.messages.clear()
+        if declared:
+            values = call()
+            assert values is None or all(math.isfinite(v) for v in values), (attribute, values)
+        else:
+            with pytest.raises(FMICallException) as info:
+                call()
+            assert info.value.status == ERROR and attribute in slave.errors(), (attribute, slave.errors())
+    slave.free()
+
+
 # ---- build and docs ------------------------------------------------------------------------------
 def test_build_is_reproducible_and_skips_when_unchanged(fmus, tmp_path, capsys):
     import build
@@ -524,9 +738,21 @@ def test_build_is_reproducible_and_skips_when_unchanged(fmus, tmp_path, capsys):
     build.build(tmp_path)
     assert "up to date" in capsys.readouterr().out
     assert {i: p.stat().st_mtime_ns for i, p in again.items()} == mtimes
-    with zipfile.ZipFile(again["MEMS"]) as z:
-        names = z.namelist()
-    assert "resources/components/plant_step.py" in names and "resources/fmu_MEMS.py" in names
+    package = build.package_name(build.fingerprint())
+    for identifier, path in again.items():
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+            script = z.read("resources/slavemodule.txt").decode()
+        assert script == f"{package}_{identifier}" and f"resources/{script}.py" in names
+        assert {f"resources/{package}/components/plant_step.py", f"resources/{package}/em_fmu_framework.py",
+                f"resources/{package}/pythonfmu/fmi2slave.py", "resources/emcosim_fmu.txt"} <= set(names)
+        # one platform, whose binaries are the loader and pythonfmu's library: no win64 binary that the
+        # modelDescription's claims would not hold for
+        assert sorted(n for n in names if n.startswith("binaries/")) == [
+            f"binaries/linux64/{identifier}.so", "binaries/linux64/libpythonfmu-export.so"]
+        # no module outside the build's own names (all Python FMUs of a process share sys.modules)
+        top = {n.split("/")[1].removesuffix(".py") for n in names if n.startswith("resources/")}
+        assert top == {package, script, "emcosim_fmu.txt", "slavemodule.txt"}, top
 
 
 def test_docs_tables_match_the_fmus(fmus):

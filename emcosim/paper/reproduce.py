@@ -40,7 +40,7 @@ PAPER_CASES = {                       # role in the claims report -> scenario na
     "maglev_prop2": "maglev_regulation_prop2",
 }
 LABELS = {
-    "mems_reg_0": "D_d = 0", "mems_reg_1": "D_d = -1", "mems_prop1": "Proposition 1, D_d = 0",
+    "mems_reg_0": "D_d = 0", "mems_reg_1": "D_d = -1", "mems_prop1": "Proposition 1, D_d = -1e-4",
     "mems_track_0": "D_d = 0", "mems_track_1": "D_d = -0.4",
     "maglev_1": "case 1: D_d = 0, R_e_bar = 0.82", "maglev_2": "case 2: D_d = 0, R_e_bar = 2.82",
     "maglev_3": "case 3: D_d = -1, R_e_bar = 0.82", "maglev_4": "case 4: D_d = -1, R_e_bar = 2.82",

@@ -94,7 +94,7 @@ N_EXITS = 20
 def test_processes_that_keep_the_library_loaded_exit_cleanly(reliability_fmus):
     """pythonfmu 0.7.0's library corrupts the heap at the exit of a process that still has it loaded
     (always the case: glibc never unloads it) unless the FMU registers its exit handler
-    (em_fmu_framework.finalize_python_at_exit; docs/reliability.md, finding 1): without it, 4 of 16
+    (since this session the loader registers it, emcosim_fmu_loader.c; docs/reliability.md, finding 1): without it, 4 of 16
     processes aborted after one lifecycle of MEMS_Theorem2 and 11 to 13 of 40 after 1000; with it, 0 of 24
     and 0 of 40. Each process here runs one lifecycle and exits; all N_EXITS must end with status 0
     (without the handler this passes with probability about 0.75**20 = 0.3 %)."""

@@ -5,6 +5,7 @@ states the closed loop it enforces: eta' = F_d grad H_d(eta, t), eq. (closedloop
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -121,17 +122,20 @@ class Controller:
         plant, else q, p, x_e and the jet entries concatenated), by one complex-step evaluation of the
         law (docs/derivations.md, "Controller Jacobians"). With v = dx/dt it is du/dt; with v = e_j,
         the Jacobian's column j. A number for a one-DOF plant, else an array of shape (n_e,)."""
-        x = [float(xi) for xi in inputs]
-        v = [float(vi) for vi in directions]
+        x, v = inputs, directions
         if len(x) != len(v):
             raise ValueError(f"{self.name}: {len(x)} inputs but {len(v)} directions")
-        ratio = max((abs(vi) / max(abs(xi), COMPLEX_STEP_FLOOR) for xi, vi in zip(x, v)), default=0.0)
-        if not ratio > 0:
-            if ratio == 0:
-                return 0.0 if self.scalars is not None else np.zeros(self.plant.n_e)
-            raise ValueError(f"{self.name}: inputs {x} or directions {v} are not finite")
+        if not math.isfinite(sum(x) + sum(v)):
+            raise ValueError(f"{self.name}: inputs {list(x)} or directions {list(v)} are not finite")
+        ratio = 0.0
+        for xi, vi in zip(x, v):
+            r = abs(vi) / max(abs(xi), COMPLEX_STEP_FLOOR)
+            if r > ratio:
+                ratio = r
+        if ratio == 0.0:
+            return 0.0 if self.scalars is not None else np.zeros(self.plant.n_e)
         h = COMPLEX_STEP / ratio                    # |h v_j| <= 1e-20 max(|x_j|, floor) for every input j
-        z = [xi + 1j * h * vi for xi, vi in zip(x, v)]
+        z = [complex(xi, h * vi) for xi, vi in zip(x, v)]
         n = self.plant.n
         if self.scalars is not None:
             u = self.u_scalar(z[0], z[1], z[2], z[3:] if self.tracking else None)

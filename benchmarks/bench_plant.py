@@ -7,8 +7,9 @@ side by side in one run.
 MEMS tracking step cost ~240 us), loaded beside the working tree's ("after"). For each row a closed loop
 of components/ (the scenario's plant, controller and reference, parameters from its .ssv files; the
 master's Gauss-Seidel order: u_k from the plant state at t_k) is recorded over n communication steps
-with the after stepper; both steppers then replay exactly those (state, input) pairs, alternately
-`--repeat` times (the machine is shared: the fastest pass of each counts). Per step: time, RODAS4
+with the after stepper; both steppers then replay exactly those (state, input) pairs, step by step
+alternately, `--repeat` times (the machine is shared: each step's fastest time counts, and the table shows
+their mean). Per step: time, RODAS4
 substeps (accepted + rejected), rejected substeps, share of steps whose electrical layer was taken in
 closed form. Accuracy: `--check` of the steps against scipy's Radau with the same input (rtol 1e-12),
 as max |error_i| / (rtol (s_i + |eta_i|)) (<= 1: within the stepper's tolerance).
@@ -89,7 +90,7 @@ def record(name: str, t0: float, h: float, hold: str, n: int):
     stepper = PlantStepper(plant, rtol=rtol)
     eta = eta0
     if t0 > 0:                                       # start on the reference (tracking, or at the set-point)
-        eta = tuple(plant.feasible_state(reference.jet(t0))[0])
+        eta = tuple(float(v) for v in plant.feasible_state(reference.jet(t0))[0])   # floats, as in the FMU
     steps = []
     for k in range(n):
         t = t0 + k * h
@@ -106,21 +107,29 @@ def record(name: str, t0: float, h: float, hold: str, n: int):
     return plant, rtol, steps
 
 
-def replay(stepper, steps, h: float, derivative: bool):
-    """Seconds per step of one pass, and the statistics per step."""
-    subs, rejected, layers = 0, 0, 0
-    tic = time.perf_counter()
-    for eta, u, du in steps:
-        if derivative:
-            stepper.advance(*eta, u, h, du)
-        else:
-            stepper.advance(*eta, u, h)
-        subs += stepper.n_substeps + stepper.n_rejected
-        rejected += stepper.n_rejected
-        layers += stepper.layer_applied
-    seconds = (time.perf_counter() - tic) / len(steps)
+def replay(old, new, steps, h: float, derivative: bool, repeat: int):
+    """Both steppers on the recorded steps, step by step alternately, `repeat` times: per stepper, the mean
+    over the steps of each step's fastest time (s), and the mean substeps, rejected substeps and layer
+    share per step."""
+    best = {"old": [float("inf")] * len(steps), "new": [float("inf")] * len(steps)}
+    stats = {}
+    for _ in range(repeat):
+        counts = {"old": [0, 0, 0], "new": [0, 0, 0]}
+        for k, (eta, u, du) in enumerate(steps):
+            for key, stepper in (("old", old), ("new", new)):
+                tic = time.perf_counter()
+                if key == "new" and derivative:
+                    stepper.advance(*eta, u, h, du)
+                else:
+                    stepper.advance(*eta, u, h)
+                best[key][k] = min(best[key][k], time.perf_counter() - tic)
+                c = counts[key]
+                c[0] += stepper.n_substeps + stepper.n_rejected
+                c[1] += stepper.n_rejected
+                c[2] += stepper.layer_applied
+        stats = counts
     n = len(steps)
-    return seconds, subs / n, rejected / n, layers / n
+    return {key: (sum(best[key]) / n, *(c / n for c in stats[key])) for key in best}
 
 
 def accuracy(plant, stepper_class, rtol, steps, h, derivative, n_check):
@@ -147,7 +156,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     before = load_before(args.before)
     print(f"before: components/plant_step.py at {args.before}; after: the working tree. "
-          f"{args.n} steps per row, best of {args.repeat} alternating passes.\n")
+          f"{args.n} steps per row, each the fastest of {args.repeat} alternating runs.\n")
     head = (f"{'scenario':26s} {'t0':>5s} {'h':>6s} {'input':9s} | {'us/step':>8s} {'substeps':>8s} {'rejected':>8s} "
             f"{'layer':>5s} {'err/tol':>7s} | {'us/step':>8s} {'substeps':>8s} {'rejected':>8s} {'layer':>5s} "
             f"{'err/tol':>7s} | {'before/after':>12s}")
@@ -158,11 +167,8 @@ def main(argv=None) -> None:
         plant, rtol, steps = record(name, t0, h, hold, args.n)
         derivative = hold == "1st order"
         old, new = before.PlantStepper(plant, rtol=rtol), PlantStepper(plant, rtol=rtol)
-        b_runs, a_runs = [], []
-        for _ in range(args.repeat):
-            b_runs.append(replay(old, steps, h, False))
-            a_runs.append(replay(new, steps, h, derivative))
-        b, a = min(b_runs), min(a_runs)
+        result = replay(old, new, steps, h, derivative, args.repeat)
+        b, a = result["old"], result["new"]
         b_err = accuracy(plant, before.PlantStepper, rtol, steps, h, False, args.check) if not derivative else None
         a_err = accuracy(plant, PlantStepper, rtol, steps, h, derivative, args.check)
         mark = "*" if derivative else " "
@@ -172,7 +178,7 @@ def main(argv=None) -> None:
               f"{b[0] / a[0]:11.1f}x", flush=True)
         if args.profile:
             profile = cProfile.Profile()
-            profile.runcall(replay, new, steps, h, derivative)
+            profile.runcall(replay, new, new, steps, h, derivative, 1)
             pstats.Stats(profile).sort_stats("tottime").print_stats(8)
     print("\n* the before stepper holds u: it cannot take the input derivative.")
 

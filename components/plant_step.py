@@ -285,13 +285,19 @@ class PlantStepper:
         x_s1 = g * ia * (du - ia * d2u - u * alpha1 * ia)
         d0 = x - x_s
         tol, (sq, sp, sx) = LAYER_TOL * self.rtol, self.scale
-        if ah >= LAYER_GONE:
-            # A layer that ends inside the step and whose whole kick, F_pq Psi' d0 (x_s + d0/4) / alpha, is
-            # below a tenth of the tolerance (its delay too): its corrections cannot matter (they are a
-            # fraction of it), so the zeroth order suffices. The common case of a held input at rest.
-            kick = F_pq * dPsi * d0 * (x_s + 0.25 * d0) * ia
-            if abs(kick) <= 0.1 * tol * (sp + abs(p)) and abs(J_qp * kick) * ia <= 0.1 * tol * (sq + abs(q)):
-                return q, p + kick, x_s, 0.0, True
+        # relative rates over the layer: r1 (first derivatives of alpha, Psi', x_s along the motion) and
+        # sigma (the mechanics: J_s with x_e on its manifold, k_s = J_pq - J_px J_xq / J_xx)
+        xx = x_s * x_s
+        k_s = F_pq * (model.d2V(q) + 0.5 * xx * d2Psi - xx * dPsi * dPsi / Psi)
+        size = abs(x_s) + abs(d0) or 1.0
+        r1 = (abs(alpha1) * ia + (abs(d2Psi * v / dPsi) if dPsi else 0.0) + abs(x_s1) / size) * ia
+        sigma = max(math.sqrt(abs(k_s * J_qp)), abs(J_pp), 1.0 / self.t_mech) * ia
+        kick = abs(d0) * (abs(dPsi * x_s) + abs(d0 * dPsi) * 0.25) * ia   # size of the zeroth-order kick
+        if ah >= LAYER_GONE and kick * (r1 + sigma) <= tol * (sp + abs(p)) and \
+                abs(J_qp) * kick * ia <= tol * (sq + abs(q)):
+            # the layer ends inside the step and what the first-order terms and the delay add is below a
+            # tenth of the tolerance: the zeroth-order kick suffices (the common case: large alpha h)
+            return q, p + F_pq * dPsi * d0 * (x_s + 0.25 * d0) * ia, x_s, 0.0, True
         # the layer's extra force on the p-row, G = F_pq Psi'(q) (x_s delta + delta^2 / 2) with
         # delta = d0 exp(-alpha tau - alpha' tau^2 / 2), to first order along the motion; its moments
         # M_k = int_0^h tau^k / k! G d tau
@@ -304,23 +310,16 @@ class PlantStepper:
         M1 = d0 * (Phi0 * J1 + Phi1 * J2 - 0.5 * alpha1 * Phi0 * J3) + d00 * (B0 * L1 + B1 * L2 - alpha1 * B0 * L3)
         M2 = 0.5 * (d0 * Phi0 * J2 + d00 * B0 * L2)
         # The smooth part feels the force G as if it all came at tau = 0, so it starts from
-        # (q, p) + sum_k (-J_s)^k e_p M_k, with J_s the (q, p) Jacobian while x_e follows its manifold:
-        # J_qp, J_pp and k_s = J_pq - J_px J_xq / J_xx (dx_s/dq = -J_xq / J_xx = -x_s Psi' / Psi).
-        xx = x_s * x_s
-        k_s = F_pq * (model.d2V(q) + 0.5 * xx * d2Psi - xx * dPsi * dPsi / Psi)
+        # (q, p) + sum_k (-J_s)^k e_p M_k (J_s: J_qp, J_pp, k_s): the kick M_0 and the corrections for its delay.
         dq = -J_qp * M1 + J_qp * J_pp * M2
         dp = M0 - J_pp * M1 + (k_s * J_qp + J_pp * J_pp) * M2
         E = math.exp(-ah - 0.5 * alpha1 * h * h) if ah < LAYER_GONE else 0.0
         # What this neglects, relative to the kick: second order in the rates of the motion over the layer
-        # (r1: first derivatives of alpha, Psi', x_s; r2: second derivatives) and third order in the
-        # mechanical rates (sigma); for delta(h), the next term alpha'' h^3 / 6 of its exponent.
+        # (r1 squared; r2: second derivatives), a cross term and third order in the mechanical rates
+        # (sigma); for delta(h), the next term alpha'' h^3 / 6 of its exponent.
         a_q = J_qp * (F_pq * (model.dV(q) + 0.5 * xx * dPsi) + J_pp * p)      # q''
         alpha2 = -F_xx * (d2Psi * v * v + dPsi * a_q)
-        size = abs(x_s) + abs(d0) or 1.0
-        r1 = (abs(alpha1) * ia + (abs(d2Psi * v / dPsi) if dPsi else 0.0) + abs(x_s1) / size) * ia
         r2 = (abs(alpha2) * ia + (abs(d2Psi * a_q / dPsi) if dPsi else 0.0) + abs(g * d2u) * ia / size) * ia * ia
-        sigma = max(math.sqrt(abs(k_s * J_qp)), abs(J_pp), 1.0 / self.t_mech) * ia
-        kick = abs(d0) * (abs(Phi0) + abs(d0 * B0) * 0.5) * ia
         if kick * (r1 * r1 + r2 + r1 * sigma + sigma ** 3) > tol * (sp + abs(p)) or \
                 abs(J_qp * kick) * ia * (r1 * r1 + r2 + sigma * sigma) > tol * (sq + abs(q)) or \
                 abs(d0) * E * abs(alpha2) * h * h * h / 6.0 > tol * (sx + abs(x_s)):

@@ -274,22 +274,44 @@ def cmd_certify(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .paper.sweep import parse_grid, parse_sample, sweep
+    from .engine.results import OutputFolder, reason_of
+    from .paper.sweep import RowStream, parse_grid, parse_sample, security, sweep
     from .paper.sweep_output import plot, write_table
 
     grid = [parse_grid(g) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
-    scenario = _read(args.scenario, args.fmu_dir)
-    rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
-                       step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
-                       stream=None if args.no_progress else sys.stderr)
+    scenario = _read(args.scenario, args.fmu_dir, args)
+    tls = security(args.tls_ca_file, args.tls_cert, args.tls_key)
     out = Path(args.out or f"sweep_{scenario.name}")
-    files = write_table(rows, out, info)
-    if not args.no_plots:
-        horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
-        files += plot(rows, dict(grid), info["units"], out, title=f"{scenario.name}, horizon {horizon:g} s")
+    folder = OutputFolder(out, recognize=("sweep.json", "sweep.csv"))     # checked before the sweep starts
+    for note in folder.notes:
+        print(f"emcosim: note: {note}", file=sys.stderr)
+    stream = RowStream(folder.path / "sweep.csv", [n for n, _ in grid] + [n for n, _, _ in samples])
+    try:
+        try:
+            rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
+                               step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
+                               stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream)
+        finally:
+            stream.close()
+        files = write_table(rows, folder.path, info)
+        if not args.no_plots:
+            horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
+            files += plot(rows, dict(grid), info["units"], folder.path, title=f"{scenario.name}, horizon {horizon:g} s")
+    except BaseException as exc:
+        if stream.rows == 0:
+            folder.discard()
+            raise
+        kept = folder.abandon(reason_of(exc))
+        note = f"{stream.rows} finished runs kept in {kept / 'sweep.csv'} ({out} was left as it was)"
+        if isinstance(exc, ScenarioError):
+            exc.args = (f"{exc}; {note}",)
+        else:
+            print(f"emcosim: {note}", file=sys.stderr)
+        raise
+    folder.commit()
     print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {info['workers']} worker{'s' if info['workers'] != 1 else ''}, "
           f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
     return 0

@@ -277,10 +277,19 @@ def check_destination(path: Path) -> None:
         raise ScenarioError(f"{path}: is a folder; give the results file's name")
     if not folder.is_dir():
         raise ScenarioError(f"{path}: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK | os.X_OK):
+    if not _writable(folder):
         raise ScenarioError(f"{path}: folder {folder} is not writable")
-    if path.exists() and not os.access(path, os.W_OK):
+    if path.exists() and not _writable(path):
         raise ScenarioError(f"{path}: exists and is read-only (not replaced)")
+
+
+def _writable(path: Path) -> bool:
+    """Writable by us, and not made read-only by its owner (no write bit at all: refused even for
+    root, who may write anywhere)."""
+    try:
+        return os.access(path, os.W_OK) and bool(path.stat().st_mode & 0o222)
+    except OSError:
+        return False
 
 
 def mark_orphans(path: Path) -> list[str]:
@@ -332,13 +341,13 @@ class OutputFolder:
             raise ScenarioError(f"{dest}: refusing to replace the current folder or one of its parents")
         if not parent.is_dir():
             raise ScenarioError(f"{dest}: folder {parent} does not exist")
-        if not os.access(parent, os.W_OK | os.X_OK):
+        if not _writable(parent):
             raise ScenarioError(f"{dest}: folder {parent} is not writable (the results are written beside "
                                 "the destination first)")
         if self.dest.exists():
             if not self.dest.is_dir():
                 raise ScenarioError(f"{dest}: exists and is not a folder")
-            if not os.access(self.dest, os.W_OK | os.X_OK):
+            if not _writable(self.dest):
                 raise ScenarioError(f"{dest}: folder is read-only (not replaced)")
             known = (self.MARKER,) + tuple(recognize)
             if any(self.dest.iterdir()) and not any((self.dest / k).exists() for k in known):
@@ -399,6 +408,11 @@ class OutputFolder:
         finally:
             os.close(self.lock)
         return self.final
+
+    def discard(self) -> None:
+        """Nothing worth keeping was computed (e.g. a specification error): remove the folder."""
+        os.close(self.lock)
+        shutil.rmtree(self.path, ignore_errors=True)
 
     def __enter__(self) -> "OutputFolder":
         return self

@@ -361,7 +361,7 @@ def _parse(path: Path, comments: bool = False, insert_comments: bool = False):
         parser = ET.XMLParser(target=target)
         parser.feed(data)
         root = parser.close()
-    except ET.ParseError as exc:
+    except (ET.ParseError, ValueError) as exc:          # ValueError: "multi-byte encodings are not supported"
         text = _decode_declared(data)
         if text is None:
             raise ScenarioError(f"{path}: malformed XML ({exc})") from None

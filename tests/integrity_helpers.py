@@ -60,4 +60,12 @@ def popen(args: list[str], env: dict | None = None, **kwargs) -> subprocess.Pope
 
 
 def partial_of(out: Path) -> Path:
+    """Where a run writing `out` keeps its rows when it fails: NAME.partial.csv."""
     return out.with_name(f"{out.stem}.partial{out.suffix}")
+
+
+def partial_note(path: Path) -> str | None:
+    """The first line of a partial results file without its '# ' (None if it has none)."""
+    with open(path) as f:
+        first = f.readline()
+    return first[2:].strip() if first.startswith("# emcosim: PARTIAL result") else None

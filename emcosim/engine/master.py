@@ -85,6 +85,9 @@ class _Transfer:
         self.elapsed = 0.0                                     # wall time inside the FMU
         self.getter = getter
         self.real = type_ == "Real"
+        # the values as plain doubles: summing this view is about 5x cheaper than summing the ctypes
+        # array (whose items are boxed one by one), measured in benchmarks/bench_integrity.py
+        self.view = memoryview(self.values).cast("B").cast("d") if self.real else None
 
     def __call__(self) -> None:
         if self.real and not self.getter:
@@ -98,7 +101,7 @@ class _Transfer:
             self._check_finite()
 
     def _check_finite(self) -> None:
-        if math.isfinite(sum(self.values)):                   # a NaN or inf anywhere makes the sum one
+        if math.isfinite(sum(self.view)):                     # a NaN or inf anywhere makes the sum one
             return
         for name, v in zip(self.names, self.values):
             if not math.isfinite(v):

@@ -149,11 +149,17 @@ class ResultFile:
         self.what = what                        # e.g. the scenario name, for the partial file's comment
         check_destination(self.path)
         self.notes = mark_orphans(self.path)
-        self.temp = _sibling(self.path, f"incomplete-{os.getpid()}")
-        try:
-            self.fd = os.open(self.temp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o666)
-        except OSError as exc:
-            raise ScenarioError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        for n in range(100):                      # a killed process with our pid may have left one
+            self.temp = _sibling(self.path, f"incomplete-{os.getpid()}" + (f"-{n}" if n else ""))
+            try:
+                self.fd = os.open(self.temp, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
+                break
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                raise ScenarioError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        else:
+            raise ScenarioError(f"cannot write {self.path}: too many {self.temp.name} files beside it")
         fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)   # held while this run lives (see mark_orphans)
         self.started = time.strftime("%Y-%m-%d %H:%M:%S")
         self.buffer: list[tuple[str, float | None]] = []
@@ -231,14 +237,20 @@ class ResultFile:
             if self.rows == 0:
                 _unlink(self.temp)
                 return None
-            dropped = _mark_partial(self.fd, self.written, self._comment(reason), self.no_space)
-            if dropped:
-                self.rows -= dropped
-                self.last_time = _last_time(self.fd)
+            try:
+                dropped = _mark_partial(self.fd, self.written, self._comment(reason), self.no_space)
+                if dropped:
+                    self.rows -= dropped
+                    self.last_time = _last_time(self.fd)
+            except OSError:
+                pass                                      # no comment line: the file's name still says it
             partial = _sibling(self.path, "partial")
-            os.replace(self.temp, partial)
-            self.final = partial
-            return partial
+            try:
+                os.replace(self.temp, partial)
+                self.final = partial
+            except OSError:
+                self.final = self.temp
+            return self.final
         finally:
             os.close(self.fd)
 
@@ -256,6 +268,11 @@ class ResultFile:
 
     def __exit__(self, kind, exc, tb) -> None:
         if exc is None:
+            try:
+                self.flush()
+            except SimulationError as failure:            # the last rows did not fit (a full disk)
+                self.abandon(reason_of(failure))
+                raise
             self.commit()
         else:
             self.abandon(reason_of(exc))
@@ -307,7 +324,7 @@ def mark_orphans(path: Path) -> list[str]:
             if os.pread(fd, 1, 0) in (b"#", b""):
                 continue                                  # marked already, or empty
             end = _last_newline(fd)
-            pid = name.rsplit("incomplete-", 1)[1].split(".")[0]
+            pid = name.rsplit("incomplete-", 1)[1].split(".")[0].split("-")[0]
             _mark_partial(fd, end, lambda rows, t: (
                 f"{PARTIAL_MARK}: the run writing this file (pid {pid}) ended without a clean exit (killed "
                 f"or crashed); {rows} rows up to t = {t:.9g} s, its last flush\n" if t is not None else
@@ -354,11 +371,18 @@ class OutputFolder:
                 raise ScenarioError(f"{dest}: folder exists and was not written by emcosim (no {' or '.join(known)}); "
                                     "it would be replaced: choose another folder or empty it")
         self.notes = mark_orphan_folders(self.dest)
-        self.path = parent / f"{name}.incomplete-{os.getpid()}"
-        if self.path.exists():                            # left by an earlier process with the same pid
-            shutil.rmtree(self.path, ignore_errors=True)
+        for n in range(100):                              # a killed process with our pid may have left one
+            self.path = parent / (f"{name}.incomplete-{os.getpid()}" + (f"-{n}" if n else ""))
+            try:
+                self.path.mkdir()
+                break
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                raise ScenarioError(f"{dest}: cannot create {self.path}: {exc.strerror or exc}") from None
+        else:
+            raise ScenarioError(f"{dest}: too many {self.path.name} folders beside it")
         try:
-            self.path.mkdir()
             self.lock = os.open(self.path / self.MARKER, os.O_WRONLY | os.O_CREAT, 0o666)
         except OSError as exc:
             raise ScenarioError(f"{dest}: cannot create {self.path}: {exc.strerror or exc}") from None
@@ -434,7 +458,7 @@ def mark_orphan_folders(dest: Path) -> list[str]:
         fd = os.open(marker, os.O_WRONLY)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            pid = folder.name.rsplit("incomplete-", 1)[1]
+            pid = folder.name.rsplit("incomplete-", 1)[1].split("-")[0]
             (folder / "PARTIAL.txt").write_text(f"Partial results: the run writing this folder (pid {pid}) "
                                                 "ended without a clean exit (killed or crashed)\n")
             notes.append(f"{folder}: results of an earlier run (pid {pid}) that was killed; marked partial")

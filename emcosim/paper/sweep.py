@@ -248,8 +248,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, securi
     except ImportError as exc:
         raise ScenarioError(f"emcosim sweep: {exc}") from None
     with _sigint_ignored():                          # the workers inherit it: Ctrl-C is the client's business
+        # silence_logs CRITICAL: every failure reaches the table as a row; what dask logs at ERROR is the
+        # noise of a shutdown after Ctrl-C (a worker's heartbeat racing the scheduler's close)
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               host="127.0.0.1", security=local, silence_logs=logging.ERROR)
+                               host="127.0.0.1", security=local, silence_logs=logging.CRITICAL)
     with cluster, Client(cluster, security=local) as client:
         yield client
 

@@ -10,7 +10,7 @@ with `read_csv`.
 - the destination is checked when it is opened, i.e. before the run starts (missing or read-only
   folder, a folder given as the file);
 - rows go to `NAME.incomplete-PID.csv` in the destination's folder, flushed to the operating system
-  at least every second (and every MiB), so that `kill -9` loses at most the last second;
+  at least every second (and every 256 KiB), so that `kill -9` loses at most the last second;
 - on success that file is renamed to `NAME.csv` (atomic: two runs writing the same file at once each
   leave a complete file, the last one wins; a reader never sees a half-written file);
 - on an error, Ctrl-C, SIGTERM or a full disk it becomes `NAME.partial.csv`, whose first line is a
@@ -38,7 +38,7 @@ from . import stopping
 from .errors import Interrupted, ScenarioError, SimulationError
 
 FLUSH_SECONDS = 1.0            # rows reach the operating system at least this often ...
-FLUSH_BYTES = 1 << 20          # ... and whenever this much is buffered
+FLUSH_BYTES = 1 << 18          # ... and whenever this much text is buffered (bounds the buffer's memory)
 NO_SPACE = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
 PARTIAL_MARK = "# emcosim: PARTIAL result"
 
@@ -162,7 +162,8 @@ class ResultFile:
             raise ScenarioError(f"cannot write {self.path}: too many {self.temp.name} files beside it")
         fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)   # held while this run lives (see mark_orphans)
         self.started = time.strftime("%Y-%m-%d %H:%M:%S")
-        self.buffer: list[tuple[str, float | None]] = []
+        self.buffer: list[str] = []             # lines not yet written (the first: the header)
+        self.header = True                      # the buffer starts with the header line
         self.pending = 0                        # bytes in the buffer
         self.written = 0                        # bytes on disk, all complete lines
         self.rows = 0                           # data rows on disk
@@ -173,11 +174,11 @@ class ResultFile:
 
     # the sink protocol of Result
     def start(self, columns: list[str]) -> None:
-        self.buffer.append((",".join(["time", *columns]) + "\n", None))
+        self.buffer.append(",".join(["time", *columns]) + "\n")
 
     def write(self, row: list) -> None:
         line = ",".join([repr(float(v)) for v in row]) + "\n"
-        self.buffer.append((line, row[0]))
+        self.buffer.append(line)
         self.pending += len(line)
         if self.pending >= FLUSH_BYTES or time.monotonic() - self.last_flush >= FLUSH_SECONDS:
             self.flush()
@@ -186,31 +187,33 @@ class ResultFile:
         """Hand the buffered rows to the operating system; an OSError (a full disk) keeps the
         complete rows that fit and raises SimulationError."""
         buffer, self.buffer, self.pending = self.buffer, [], 0
+        header, self.header = self.header, False
         self.last_flush = time.monotonic()
         if not buffer:
             return
         try:
-            self._write(b"".join(line.encode() for line, _ in buffer), buffer)
+            self._write("".join(buffer), len(buffer) - header)
         except OSError:
             os.ftruncate(self.fd, self.written)          # no torn line: back to the last complete one
-            for item in buffer:                           # save what fits, one row at a time
+            for i, line in enumerate(buffer):             # save what fits, one row at a time
                 try:
-                    self._write(item[0].encode(), [item])
+                    self._write(line, 0 if header and i == 0 else 1)
                 except OSError as exc:
                     os.ftruncate(self.fd, self.written)
                     self.no_space = exc.errno in NO_SPACE
                     raise SimulationError(f"cannot write {self.path}: {exc.strerror or exc}") from None
 
-    def _write(self, data: bytes, items) -> None:
+    def _write(self, text: str, rows: int) -> None:
+        """Write complete lines (`rows` of them data rows) after what is on disk."""
+        data = text.encode()
         view = memoryview(data)
         while view:
             n = os.pwrite(self.fd, view, self.written + len(data) - len(view))
             view = view[n:]
         self.written += len(data)
-        for _, t in items:
-            if t is not None:
-                self.rows += 1
-                self.last_time = t
+        if rows:
+            self.rows += rows
+            self.last_time = float(text[text.rfind("\n", 0, len(text) - 1) + 1:].split(",", 1)[0])
 
     def commit(self) -> Path:
         """The run succeeded: rename the file into place."""

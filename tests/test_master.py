@@ -235,10 +235,11 @@ def test_malformed_xml(loop, capsys, victim):
 
 
 def test_fmu_failing_mid_run_keeps_results(loop, tmp_path, capsys):
-    out = tmp_path / "partial.csv"
+    out = tmp_path / "r.csv"
     err = run_cli(["run", str(loop), "--set", "plant.fail_at=0.5", "--output", str(out)], capsys)
     assert "ToyIntegrator.fmu" in err and "fmi2DoStep" in err and "t = 0.5" in err and "integrator fails" in err
-    data = read_csv(out)
+    assert not out.exists()                                   # the rows are kept, marked partial
+    data = read_csv(tmp_path / "r.partial.csv")
     assert data["time"][-1] == pytest.approx(0.5) and len(data["time"]) == 51
     np.testing.assert_allclose(data["plant.x"], 0.99 ** np.arange(51), rtol=1e-12)
 

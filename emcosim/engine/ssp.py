@@ -8,7 +8,7 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from .errors import ScenarioError
-from .ssd import NS, SSD_NAME, Scenario, read_scenario, resolve_path
+from .ssd import NS, SSD_NAME, Scenario, _parse, read_scenario, resolve_path
 
 
 def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str | Path | None = None) -> Path:
@@ -19,7 +19,7 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
     else:
         ssd = resolve_path(scenario)
         parsed = read_scenario(ssd, fmu_dir=fmu_dir)  # checks the files before packing
-    tree = ET.parse(ssd, ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
+    tree = ET.ElementTree(_parse(ssd, insert_comments=True))      # any encoding; written as UTF-8
     fmus: dict[str, Path] = {}
     for el in tree.getroot().iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
         comp = parsed.component(el.get("name"))

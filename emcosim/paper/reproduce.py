@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import signal
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -18,10 +19,11 @@ import numpy as np
 
 from . import report
 from .certify import design_from_scenario
-from ..engine.errors import ScenarioError, SimulationError
+from ..engine import stopping
+from ..engine.errors import Interrupted, ScenarioError, SimulationError
 from ..engine.master import simulate
 from ..progress import ProgressBar
-from ..engine.results import Result
+from ..engine.results import OutputFolder, Result, write_csv
 from ..engine.ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -82,17 +84,21 @@ def _worker(name: str, stop_time, fmu_dir, queue) -> tuple[list[str], list[list[
 def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | None = None,
                         out=None, fmu_dir: str | Path | None = None, jobs: int | None = None,
                         failed: dict[str, SimulationError | ScenarioError] | None = None,
-                        ) -> tuple[dict[str, report.Run], dict[str, float]]:
+                        finished: dict | None = None) -> tuple[dict[str, report.Run], dict[str, float]]:
     """Run each scenario (at its default step and horizon unless stop_time is given), `jobs` at a
     time in worker processes (default: one per core; 1 runs them here, one after the other).
     Progress goes to `out`: which scenarios run and how far each is. A scenario that fails does not
     stop the others: its error goes into `failed` (by name) when a dict is given, else it is raised
-    after the other runs."""
+    after the other runs. `finished` (a dict), if given, receives (columns, rows, wall time) of each
+    scenario as it finishes: what was computed survives an interruption."""
     out = sys.stderr if out is None else out
     jobs = max(1, min(len(names), jobs or os.cpu_count() or 1))
     errors: dict = {} if failed is None else failed
-    results = _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) if jobs > 1 else \
-        _run_serial(names, stop_time, fmu_dir, out, errors)
+    results: dict = {} if finished is None else finished
+    if jobs > 1:
+        _run_parallel(names, stop_time, fmu_dir, jobs, out, errors, results)
+    else:
+        _run_serial(names, stop_time, fmu_dir, out, errors, results)
     if failed is None and errors:
         raise next(iter(errors.values()))
     runs, walls = {}, {}
@@ -113,12 +119,13 @@ def _done(i: int, n: int, name: str, outcome) -> str:
     return f"[{i}/{n}] {name}: {len(outcome[1])} communication points in {outcome[2]:.1f} s"
 
 
-def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
-    results = {}
+def _run_serial(names, stop_time, fmu_dir, out, errors, results) -> dict:
     for i, name in enumerate(names.values(), 1):
         bar = ProgressBar(f"[{i}/{len(names)}] {name}", stream=out)
         try:
             outcome = results[name] = _simulate_case(name, stop_time, fmu_dir, bar)
+        except Interrupted:
+            raise
         except ScenarioError as exc:
             outcome = errors[name] = exc
         finally:
@@ -127,21 +134,36 @@ def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
     return results
 
 
-def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) -> dict:
+def _ignore_sigint() -> None:
+    """Worker processes leave Ctrl-C to the parent (a terminal sends it to all of them): the parent
+    stops them with SIGTERM if the run is interrupted."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors, results) -> dict:
     """Longest runs first (by communication steps), in `jobs` worker processes; a status line of
     every running scenario's progress (redrawn on a terminal, every few seconds otherwise)."""
     order = sorted(names.values(), key=lambda n: -_n_steps(n, stop_time))
     context = multiprocessing.get_context("spawn")              # a fresh interpreter per worker (pythonfmu)
-    results, fraction = {}, {}
+    fraction = {}
     tty = getattr(out, "isatty", lambda: False)()
     last_line, finished = 0.0, 0
-    with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context) as pool:
-        queue = manager.Queue()
-        futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
-        pending = set(futures)
-        print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
+    with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context, initializer=_ignore_sigint) as pool:
+        try:
+            queue = manager.Queue()
+            futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
+            pending = set(futures)
+            print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
+        except BaseException:
+            _stop_workers(pool)
+            raise
         while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            try:
+                stopping.check()                                   # Ctrl-C / SIGTERM: stop the workers
+                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            except BaseException:
+                _stop_workers(pool)
+                raise
             while not queue.empty():
                 name, f = queue.get()
                 fraction[name] = f
@@ -164,6 +186,13 @@ def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) -> dict:
                 out.flush()
                 last_line = now
     return results
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel what has not started and end the running scenarios' processes (SIGTERM)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in multiprocessing.active_children():
+        process.terminate()
 
 
 def _n_steps(name: str, stop_time: float | None) -> float:
@@ -201,14 +230,42 @@ def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
 
 def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=None,
               fmu_dir: str | Path | None = None, jobs: int | None = None) -> dict:
-    """Run every paper scenario and write figures, metrics and claims into out_dir. A failed
-    scenario leaves out what needs it (its rows up to the failure go to NAME.partial.csv) and ends
-    in a ScenarioError naming it, after everything else is written."""
+    """Run every paper scenario and write figures, metrics and claims into out_dir.
+
+    The output folder is checked before any scenario runs, and written as a whole: everything goes
+    into a fresh folder beside it that replaces out_dir only when every scenario ran (see
+    results.OutputFolder). A failed scenario leaves out what needs it (its rows up to the failure go
+    to NAME.partial.csv) and ends in a ScenarioError naming it, after everything else is written
+    into OUT.partial; an interruption keeps the finished scenarios' rows there (NAME.csv). out_dir
+    itself is then left as it was."""
     out = sys.stderr if out is None else out
-    out_path = Path(out_dir)
-    out_path.mkdir(parents=True, exist_ok=True)
+    folder = OutputFolder(out_dir, recognize=("runs.json", "claims.md"))
+    for note in folder.notes:
+        print(f"note: {note}", file=out)
+    finished: dict = {}
+    try:
+        with folder:
+            try:
+                content = _reproduce_into(folder.path, stop_time, out, fmu_dir, jobs, finished)
+            except (Interrupted, KeyboardInterrupt):
+                for name, (columns, rows, _) in finished.items():       # keep what finished
+                    write_csv(folder.path / f"{name}.csv", ["time", *columns], rows)
+                raise
+    except ScenarioError as exc:
+        if folder.final is not None:                     # None: replacing out_dir failed (the error says)
+            exc.args = (f"{exc}; the results so far are in {folder.final} ({out_dir} was left as it was)",)
+        raise
+    except KeyboardInterrupt:
+        print(f"interrupted: the results so far are in {folder.final} ({out_dir} was left as it was)", file=out)
+        raise
+    print(f"results in {folder.final}", file=out)
+    return content
+
+
+def _reproduce_into(out_path: Path, stop_time, out, fmu_dir, jobs, finished: dict) -> dict:
     failed: dict[str, ScenarioError] = {}
-    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed)
+    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed,
+                                      finished=finished)
     figures = write_figures(runs, out_path)
     notes = []
     for name in PAPER_CASES.values():
@@ -217,12 +274,12 @@ def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, o
                                    {role: runs[role].name for role in runs}, out_path, notes)
     (out_path / "runs.json").write_text(json.dumps({"wall_time_s": walls,
                                                     "failed": {n: str(e) for n, e in failed.items()}}, indent=1))
-    print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json to {out_path}", file=out)
+    print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json", file=out)
     if failed:
         for name, exc in failed.items():
             partial = getattr(exc, "result", None)
             if partial is not None and len(partial):
-                partial.write_csv(out_path / f"{name}.partial.csv")
+                partial.write_csv(out_path / f"{name}.partial.csv", note=f"emcosim: PARTIAL result of {name}: {exc}")
         raise ScenarioError(f"{len(failed)} of {len(PAPER_CASES)} scenarios failed: "
                             + "; ".join(f"{n}: {' '.join(str(e).split())}" for n, e in failed.items()))
     return content

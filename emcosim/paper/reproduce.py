@@ -128,41 +128,39 @@ def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
 
 
 def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) -> dict:
-    """Longest runs first (by communication steps), in `jobs` worker processes; a status line of
-    every running scenario's progress (redrawn on a terminal, every few seconds otherwise)."""
-    order = sorted(names.values(), key=lambda n: -_n_steps(n, stop_time))
+    """Longest runs first (by communication steps), in `jobs` worker processes; one bar (tqdm, on a
+    terminal only) of the communication steps done over all scenarios, and a line per finished one."""
+    steps = {n: _n_steps(n, stop_time) for n in names.values()}
+    order = sorted(names.values(), key=lambda n: -steps[n])
     context = multiprocessing.get_context("spawn")              # a fresh interpreter per worker (pythonfmu)
     results, fraction = {}, {}
-    tty = getattr(out, "isatty", lambda: False)()
-    last_line, finished = 0.0, 0
-    with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context) as pool:
-        queue = manager.Queue()
-        futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
-        pending = set(futures)
-        print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
-        while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            while not queue.empty():
-                name, f = queue.get()
-                fraction[name] = f
-            for future in done:
-                name = futures[future]
-                try:
-                    outcome = results[name] = future.result()
-                except ScenarioError as exc:
-                    outcome = errors[name] = exc
-                except Exception as exc:                           # a worker died (e.g. the host crashed)
-                    outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
-                fraction.pop(name, None)
-                finished += 1
-                print(("\r\033[K" if tty else "") + _done(finished, len(names), name, outcome),
-                      file=out, flush=True)
-            now = time.monotonic()
-            if fraction and (tty or now - last_line > 5.0):
-                line = "  ".join(f"{n} {100 * f:.0f}%" for n, f in fraction.items())
-                out.write(f"\r\033[Krunning: {line}" if tty else f"running: {line}\n")
-                out.flush()
-                last_line = now
+    finished = 0
+    print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
+    bar = ProgressBar("reproduce", stream=out)
+    try:
+        with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context) as pool:
+            queue = manager.Queue()
+            futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                while not queue.empty():
+                    name, f = queue.get()
+                    fraction[name] = f
+                for future in done:
+                    name = futures[future]
+                    try:
+                        outcome = results[name] = future.result()
+                    except ScenarioError as exc:
+                        outcome = errors[name] = exc
+                    except Exception as exc:                       # a worker died (e.g. the host crashed)
+                        outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
+                    fraction[name] = 1.0
+                    finished += 1
+                    bar.write(_done(finished, len(names), name, outcome))
+                bar(sum(steps[n] * f for n, f in fraction.items()) / sum(steps.values()))
+    finally:
+        bar.close()
     return results
 
 

@@ -224,38 +224,32 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             stop_time: float | None = None, step_size: float | None = None,
             stream: TextIO | None = sys.stderr) -> list[dict]:
-    """Submit every run to the cluster and return the rows in the order of `runs`; progress
-    ('runs done / total') goes to `stream`."""
+    """Submit every run to the cluster and return the rows in the order of `runs`; a progress bar
+    of the runs done (emcosim.progress, on a terminal only) goes to `stream`."""
     from dask.distributed import as_completed
+
+    from ..progress import Counter
 
     futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, pure=False)
                for values in runs]
     index = {f.key: i for i, f in enumerate(futures)}
     rows: list[dict | None] = [None] * len(runs)
-    tic = time.monotonic()
     failed = 0
-    for done, future in enumerate(as_completed(futures), 1):
-        i = index[future.key]
-        try:
-            rows[i] = future.result()
-        except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
-            rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
-        failed += rows[i]["status"] != "ok"
-        _progress(stream, done, len(runs), failed, time.monotonic() - tic)
+    bar = None if stream is None else Counter(len(runs), "sweep", "run", stream)
+    try:
+        for future in as_completed(futures):
+            i = index[future.key]
+            try:
+                rows[i] = future.result()
+            except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
+                rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+            failed += rows[i]["status"] != "ok"
+            if bar is not None:
+                bar.advance(f"{failed} failed" if failed else "")
+    finally:
+        if bar is not None:
+            bar.close()
     return rows
-
-
-def _progress(stream: TextIO | None, done: int, total: int, failed: int, elapsed: float) -> None:
-    if stream is None:
-        return
-    tty = getattr(stream, "isatty", lambda: False)()
-    if not tty and done != total and done % max(1, total // 10):
-        return
-    text = f"sweep: {done}/{total} runs done" + (f" ({failed} failed)" if failed else "") + f", {elapsed:.1f} s"
-    stream.write(("\r" + text) if tty else text + "\n")
-    if tty and done == total:
-        stream.write("\n")
-    stream.flush()
 
 
 def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],

@@ -54,28 +54,3 @@ def read_csv(path: str | Path) -> dict[str, np.ndarray]:
     data = data.reshape(-1, len(header))
     return {name: data[:, i] for i, name in enumerate(header)}
 
-
-def plot(result: Result, path: str | Path, title: str = "") -> None:
-    """One panel per component, its recorded variables normalised by their maximum magnitude."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    components = list(dict.fromkeys(c.partition(".")[0] for c in result.columns))
-    fig, axes = plt.subplots(len(components), 1, sharex=True, figsize=(8, 2.2 * len(components) + 0.6),
-                             squeeze=False)
-    t = result.time
-    for ax, comp in zip(axes[:, 0], components):
-        for name in [c for c in result.columns if c.partition(".")[0] == comp]:
-            y = result[name]
-            scale = np.max(np.abs(y)) if len(y) and np.max(np.abs(y)) > 0 else 1.0
-            ax.plot(t, y / scale, label=f"{name} / {scale:.3g}")
-        ax.set_ylabel(comp)
-        ax.legend(fontsize="small", loc="best")
-        ax.grid(True, alpha=0.3)
-    axes[-1, 0].set_xlabel("time [s]")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)

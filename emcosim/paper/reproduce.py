@@ -48,15 +48,30 @@ LABELS = {
 }
 
 
+def plant_and_controller(scenario) -> tuple[str, str]:
+    """Names of the scenario's plant and controller components (by their FMUs' model names)."""
+    from components import catalog
+
+    by_model = {Path(c.source).stem: c.name for c in scenario.components}
+    plant = next((by_model[m] for m in catalog.PLANTS if m in by_model), None)
+    controller = next((by_model[m] for m in catalog.GAINS if m in by_model), None)
+    if plant is None or controller is None:
+        raise ValueError(f"{scenario.path}: no plant and controller FMU of this suite")
+    return plant, controller
+
+
 def run_from_result(name: str, label: str, scenario, result) -> report.Run:
     """A report.Run from the master's recorded columns plus the design's target eta*(t)."""
     d = design_from_scenario(scenario)
+    plant, controller = plant_and_controller(scenario)
     t = result.time
     jets = [None if d.reference is None else d.reference.jet(tt) for tt in t]
     eta_star = np.array([d.controller.target(j) for j in jets])
-    plant = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
-    return report.Run(name, plant, label, t, result["plant.q"], result["plant.p"], result["plant.x_e"],
-                      result["controller.u"], eta_star)
+    model = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
+    H = result[f"{plant}.H"] if f"{plant}.H" in result.columns else None
+    return report.Run(name, model, label, t, result[f"{plant}.q"], result[f"{plant}.p"], result[f"{plant}.x_e"],
+                      result[f"{controller}.u"], eta_star,
+                      horizon=float(scenario.stop_time) if scenario.stop_time is not None else float("nan"), H=H)
 
 
 def _simulate_case(name: str, stop_time: float | None, fmu_dir: str | Path | None,
@@ -102,8 +117,21 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
         columns, rows, walls[name] = results[name]
         result = Result(columns)
         result.rows = rows
-        runs[role] = run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name), result)
+        runs[role] = with_conditions(run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name),
+                                                     result), read_scenario(SCENARIOS / name))
     return runs, walls
+
+
+def with_conditions(run: report.Run, scenario) -> report.Run:
+    """The run with the conditions of its theorem that its design violates in `notes`, and named in
+    its label (e.g. maglev cases 1 and 3: K_e < 0, erratum 4)."""
+    from . import design_facts
+
+    violated = design_facts.violated_conditions(design_facts.design(scenario))
+    run.notes = [text for _, text in violated]
+    if violated:
+        run.label += "; violates " + ", ".join(name.split(" (")[0] for name, _ in violated)
+    return run
 
 
 def _done(i: int, n: int, name: str, outcome) -> str:
@@ -180,21 +208,87 @@ def ensure_fmus(out=sys.stderr) -> None:
 
 
 def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
-    files = []
+    """The paper's Figs. 1-4 (PNG and SVG) from the runs there are."""
+    return [f for spec, stem in figure_specs(runs) for f in report.save_figure(spec, out / stem)]
+
+
+def figure_specs(runs: dict[str, report.Run]) -> list[tuple[report.FigureSpec, str]]:
+    """(spec, file stem) of each paper figure the runs allow."""
+    specs = []
     if {"mems_reg_0", "mems_reg_1"} <= runs.keys():
-        files += report.figure_states([runs["mems_reg_0"], runs["mems_reg_1"]],
-                                      "MEMS regulation to q_d = 30 um without and with coupled damping (Theorem 2, Fig. 1)",
-                                      out / "fig1_mems_regulation", "q_d (eta_d)")
+        specs.append((report.states_figure([runs["mems_reg_0"], runs["mems_reg_1"]],
+                                           "MEMS regulation to q_d = 30 µm without and with coupled damping "
+                                           "(Theorem 2, Fig. 1)", "q_d (eta_d)"), "fig1_mems_regulation"))
     if {"mems_track_0", "mems_track_1"} <= runs.keys():
-        files += report.figure_states([runs["mems_track_0"], runs["mems_track_1"]],
-                                      "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping (Fig. 2)",
-                                      out / "fig2_mems_tracking", "q* (eta*)")
+        specs.append((report.states_figure([runs["mems_track_0"], runs["mems_track_1"]],
+                                           "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping "
+                                           "(Fig. 2)", "q* (eta*)"), "fig2_mems_tracking"))
     maglev = [runs[f"maglev_{i}"] for i in range(1, 5) if f"maglev_{i}" in runs]
     if len(maglev) == 4:
-        files += report.figure_states(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, Fig. 3)",
-                                      out / "fig3_maglev_tracking", "q* (eta*)")
-        files += report.figure_error_norms(maglev, runs["maglev_3"], out / "fig4_maglev_error_norms")
-    return files
+        specs.append((report.states_figure(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, "
+                                                   "Fig. 3)", "q* (eta*)"), "fig3_maglev_tracking"))
+        specs.append((report.error_norm_figure(maglev, runs["maglev_3"]), "fig4_maglev_error_norms"))
+    return specs
+
+
+def design_facts_of(names: dict[str, str] = PAPER_CASES) -> dict:
+    """What the claims need beyond the runs (emcosim.paper.design_facts): each role's dominant
+    linearized mode, Theorem 1 (iii) at the paper's gains and on a grid of gains, and the damping
+    of the linearized maglev loop over R_e_bar. About 10 s; no simulation."""
+    from components import maglev
+    from . import design_facts as facts
+
+    scen = {role: read_scenario(SCENARIOS / name) for role, name in names.items()}
+    modes = {role: facts.dominant_mode(facts.design(s)) for role, s in scen.items()}
+    iii = {}
+    for plant, prefix, grid in [
+            ("MEMS", "mems", {"controller.rbar_e": [1.0, 10.0, 100.0], "controller.D_d": [-4.0, -1.0, -0.4, 0.0]}),
+            ("Maglev", "maglev", {"controller.R_e_bar": [0.82, 2.82, 10.0], "controller.k_c": [1.0, 20.0, 200.0],
+                                  "controller.D_d": [maglev.D_d_from_paper(D) for D in (0.0, -1.0, -2.0)]})]:
+        theirs = {s.name: facts.theorem1_iii(facts.design(s)) for role, s in scen.items() if role.startswith(prefix)}
+        tracking = next(s for role, s in scen.items() if role.startswith(prefix) and "track" in s.name)
+        iii[plant] = {"paper": theirs, "grid": grid, "search": facts.theorem1_iii_search(tracking, grid)}
+    overdamping = []
+    if "maglev_1" in scen:
+        for D in (0.0, -1.0):
+            for R in (0.82, 2.82, 5.0, 10.0, 20.0, 50.0):
+                d = facts.design(scen["maglev_1"], {"controller.D_d": maglev.D_d_from_paper(D), "controller.R_e_bar": R})
+                overdamping.append({"D_d paper": D, "R_e_bar": R, **facts.dominant_mode(d)})
+    return {"modes": modes, "iii": iii, "overdamping": overdamping}
+
+
+def choices(names: dict[str, str] = PAPER_CASES) -> list[str]:
+    """'Choices the paper does not make' as paragraphs: one per plant (what all its scenarios share),
+    then one per scenario (its own choices, horizon and default step), from the scenario table
+    (emcosim.paper.scenarios)."""
+    from .scenarios import cases
+
+    table = [c for c in cases() if c.name in names.values()]
+    out = []
+    for plant in dict.fromkeys(c.plant for c in table):
+        mine = [c for c in table if c.plant == plant]
+        shared = [n for n in mine[0].notes if all(n in c.notes for c in mine)]
+        out.append(f"**All {plant} scenarios.** " + " ".join(_sentence(n) for n in shared))
+        for c in mine:
+            own = [n for n in c.notes if n not in shared]
+            out.append(f"**{c.name}.** {_sentence(c.description)} " + " ".join(_sentence(n) for n in own)
+                       + f" Horizon {c.stop_time:g} s, default communication step {c.step_size:g} s.")
+    return out
+
+
+def _sentence(text: str) -> str:
+    text = text.strip()
+    return text if text.endswith(".") else text + "."
+
+
+def shortened_banner(runs: dict[str, report.Run]) -> str:
+    short = {r.name: r for r in runs.values() if r.shortened}
+    if not short:
+        return ""
+    return (f"Shortened runs: {len(short)} of {len(runs)} scenarios were cut short ("
+            + ", ".join(f"{n} to {r.t[-1]:g} s of {r.horizon:g} s" for n, r in short.items())
+            + "). Their figures and metrics cover the shortened horizon only, and every verdict that needs the "
+              "full horizon is 'not decided'.")
 
 
 def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=None,
@@ -208,11 +302,8 @@ def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, o
     failed: dict[str, ScenarioError] = {}
     runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed)
     figures = write_figures(runs, out_path)
-    notes = []
-    for name in PAPER_CASES.values():
-        notes += [n for n in read_scenario(SCENARIOS / name).notes if n not in notes and "Generated by" not in n]
-    content = report.write_reports({r.name: r for r in runs.values()},
-                                   {role: runs[role].name for role in runs}, out_path, notes)
+    content = report.write_reports({r.name: r for r in runs.values()}, {role: runs[role].name for role in runs},
+                                   out_path, choices(), design_facts_of(), shortened_banner(runs))
     (out_path / "runs.json").write_text(json.dumps({"wall_time_s": walls,
                                                     "failed": {n: str(e) for n, e in failed.items()}}, indent=1))
     print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json to {out_path}", file=out)

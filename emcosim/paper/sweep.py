@@ -101,13 +101,21 @@ def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, 
     return [{**dict(zip([n for n, _ in grid], combo)), **draw} for combo in combos for draw in draws]
 
 
-def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float]) -> dict[str, str]:
+def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float],
+                     options: dict[str, str] | None = None) -> dict[str, str]:
     """Check every swept name with the master's own checks (component and variable exist, can be set,
-    is Real) and return its unit from the FMU's modelDescription ('' if none)."""
+    is Real) and return its unit from the FMU's modelDescription ('' if none). `options` names the
+    command-line option of each name (--grid or --sample) for the error message."""
     from ..engine import master
     from ..engine.session import check_start_values
 
-    check_start_values(scenario, {n: example[n] for n in names})
+    for name in names:
+        option = (options or {}).get(name, "--grid/--sample")
+        try:
+            check_start_values(scenario, {name: example[name]})
+        except ScenarioError as exc:                  # the master says --set; the user typed --grid/--sample
+            text = str(exc)
+            raise ScenarioError(option + text[len("--set"):] if text.startswith("--set ") else text) from None
     instances = master.load(scenario)
     units = {}
     for name in names:
@@ -260,7 +268,8 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
     the wall time and the throughput."""
     runs = points(grid, samples, n_samples, seed)
     names = list(runs[0])
-    units = check_parameters(scenario, names, runs[0])
+    options = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
+    units = check_parameters(scenario, names, runs[0], options)
     fmu_dir = _common_fmu_dir(scenario)
     tic = time.perf_counter()
     with dask_client(workers, scheduler) as client:

@@ -218,7 +218,12 @@ def _all(verdicts: list[str]) -> str:
 
 
 def _notes(*runs: Run) -> list[str]:
-    return [f"{r.label.split(';')[0]}: {n}" for r in runs for n in r.notes]
+    """The runs' notes, each once, with the runs it concerns ("case 1, case 3: violates ...")."""
+    by_text: dict[str, list[str]] = {}
+    for r in runs:
+        for n in r.notes:
+            by_text.setdefault(n, []).append(r.label.split(";")[0].split(":")[0])
+    return [f"{' and '.join(who)}: {text}" for text, who in by_text.items()]
 
 
 def _reasons(*texts: str) -> str:
@@ -338,16 +343,21 @@ def _maglev_claims(runs: list[Run], m: list[Metrics], modes: list[dict | None], 
     out.append(Claim("Maglev: q oscillates less with coupled damping (case 3 fewer than case 1, case 4 fewer than case 2)",
                      "Sec. 7.2, Fig. 3", f"sign changes of e outside the 2 % band over {horizon} (a count is a lower "
                      "bound for a case that has not settled: decided only where that bound suffices)",
-                     _all(fewer), short or "", {**{f"case {i} sign changes": x.oscillations for i, x in enumerate(m, 1)},
+                     _all(fewer), short or (f"case 3: {m[2].oscillations} vs case 1: {m[0].oscillations}; case 4: "
+                                            f"{m[3].oscillations} vs case 2: {m[1].oscillations}"),
+                     {**{f"case {i} sign changes": x.oscillations for i, x in enumerate(m, 1)},
                                                 **zetas}, notes))
     decays = [decay(r) for r in runs]
     fits = all(d.rate is not None and d.r2 >= MIN_R2 for d in decays)
     slower = decays[1].rate < decays[0].rate and decays[3].rate < decays[2].rate if fits else None
     verdict = UNDECIDED if (short or not fits) else (HOLDS if slower else FAILS)
+    why = short or ("a decay fit is missing or poor" if not fits else
+                    f"case 2 decays at {decays[1].rate:.3g} 1/s against {decays[0].rate:.3g} for case 1, case 4 at "
+                    f"{decays[3].rate:.3g} against {decays[2].rate:.3g} for case 3")
     out.append(Claim("Maglev: larger electrical damping (cases 2, 4) converges more slowly than cases 1, 3",
                      "Sec. 7.2, Fig. 4", f"fitted exponential decay rate of the envelope of |e| over {horizon} (fit "
                      f"R^2 >= {MIN_R2}): rate(case 2) < rate(case 1) and rate(case 4) < rate(case 3)",
-                     verdict, short or ("" if fits else "a decay fit is missing or poor"),
+                     verdict, why,
                      {**{f"case {i} fitted decay rate [1/s]": d.rate for i, d in enumerate(decays, 1)},
                       **{f"case {i} fit R^2": d.r2 for i, d in enumerate(decays, 1)},
                       **{f"case {i} decay rate of the linearization [1/s]": md["rate"] for i, md in enumerate(modes, 1) if md}},
@@ -387,7 +397,7 @@ def _theorem1_iii_claim(plant: str, f: dict) -> Claim:
     nums = {"scenarios at the paper's gains where (iii) holds": f"{len(held)} of {len(paper)}",
             "largest gamma1/gamma2 at the paper's gains": worst["gamma1/gamma2"],
             "its S = sup_w |(jwI - F_d)^-1 F_d|": worst["S"],
-            "(iii) needs gamma1/gamma2 >": 1 - 1 / worst["S"] if worst["S"] else None,
+            "(iii) needs gamma1/gamma2 >": f"{1 - 1 / worst['S']:.7g}" if worst["S"] else None,
             "gain combinations tried": search["tried"], "accepted by the controller": search["accepted"],
             "where (iii) holds": search["holds"]}
     reason = (f"(iii) holds at the paper's gains in {', '.join(held)}" if held else
@@ -410,9 +420,10 @@ def _overdamping_claim(rows: list[dict]) -> Claim:
     ok = all(by[(D, 2.82)]["zeta"] >= 1.0 and by[(D, 2.82)]["rate"] < by[(D, 0.82)]["rate"] for D in Ds)
     nums = {}
     for D in Ds:
-        for r in sorted((r for r in rows if r["D_d paper"] == D), key=lambda r: r["R_e_bar"]):
-            nums[f"D_d = {D:g}, R_e_bar = {r['R_e_bar']:g}: damping ratio"] = r["zeta"]
-            nums[f"D_d = {D:g}, R_e_bar = {r['R_e_bar']:g}: decay rate [1/s]"] = r["rate"]
+        mine = sorted((r for r in rows if r["D_d paper"] == D), key=lambda r: r["R_e_bar"])
+        at = ", ".join(f"{r['R_e_bar']:g}" for r in mine)
+        nums[f"D_d = {D:g}, damping ratio at R_e_bar = {at}"] = ", ".join(f"{r['zeta']:.3g}" for r in mine)
+        nums[f"D_d = {D:g}, decay rate [1/s] at R_e_bar = {at}"] = ", ".join(f"{r['rate']:.3g}" for r in mine)
     top = {D: max(r["zeta"] for r in rows if r["D_d paper"] == D) for D in Ds}
     reason = ("at R_e_bar = 2.82 the slowest mode is still an oscillation (damping ratio "
               + ", ".join(f"{by[(D, 2.82)]['zeta']:.3g} for D_d = {D:g}" for D in Ds)

@@ -258,21 +258,32 @@ def design_facts_of(names: dict[str, str] = PAPER_CASES) -> dict:
 
 
 def choices(names: dict[str, str] = PAPER_CASES) -> list[str]:
-    """'Choices the paper does not make' as paragraphs: one per plant (what all its scenarios share),
-    then one per scenario (its own choices, horizon and default step), from the scenario table
-    (emcosim.paper.scenarios)."""
+    """'Choices the paper does not make' as short paragraphs, from the scenario table
+    (emcosim.paper.scenarios): first what several scenarios share (one paragraph per group), then one
+    per scenario (what it is, its own choices, its horizon and default step)."""
     from .scenarios import cases
 
     table = [c for c in cases() if c.name in names.values()]
+    holders: dict[str, list[str]] = {}
+    for c in table:
+        for n in c.notes:
+            holders.setdefault(n, []).append(c.name)
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for note, who in holders.items():
+        if len(who) > 1:
+            groups.setdefault(tuple(who), []).append(note)
     out = []
     for plant in dict.fromkeys(c.plant for c in table):
-        mine = [c for c in table if c.plant == plant]
-        shared = [n for n in mine[0].notes if all(n in c.notes for c in mine)]
-        out.append(f"**All {plant} scenarios.** " + " ".join(_sentence(n) for n in shared))
-        for c in mine:
-            own = [n for n in c.notes if n not in shared]
-            out.append(f"**{c.name}.** {_sentence(c.description)} " + " ".join(_sentence(n) for n in own)
-                       + f" Horizon {c.stop_time:g} s, default communication step {c.step_size:g} s.")
+        everyone = [c.name for c in table if c.plant == plant]
+        for who, notes in groups.items():
+            if who[0] in everyone:
+                head = f"All {plant} scenarios" if list(who) == everyone else ", ".join(who)
+                out.append(f"**{head}.** " + " ".join(_sentence(n) for n in notes))
+        for c in (c for c in table if c.plant == plant):
+            own = [n for n in c.notes if len(holders[n]) == 1]
+            horizon = "" if any("Horizon" in n for n in c.notes) else f"Horizon {c.stop_time:g} s, "
+            out.append(f"**{c.name}.** {_sentence(c.description)} " + "".join(f"{_sentence(n)} " for n in own)
+                       + f"{horizon}{'d' if horizon else 'D'}efault communication step {c.step_size:g} s.")
     return out
 
 

@@ -65,8 +65,9 @@ def hinf_norm_F(F: np.ndarray, n: int = 2000) -> float:
     lam = np.linalg.eigvals(F)
     mags = np.abs(lam[np.abs(lam) > 0])
     w = np.concatenate([[0.0], np.logspace(np.log10(mags.min()) - 3, np.log10(mags.max()) + 3, n), np.abs(lam.imag)])
-    eye = np.eye(F.shape[0])
-    return float(max(np.linalg.norm(np.linalg.solve(1j * x * eye - F, F), 2) for x in w))
+    A = 1j * w[:, None, None] * np.eye(F.shape[0]) - F                   # (jwI - F) for every w at once
+    X = np.linalg.solve(A, np.broadcast_to(F.astype(complex), A.shape))
+    return float(np.max(np.linalg.svd(X, compute_uv=False)[:, 0]))
 
 
 def theorem1_iii(d: Design, radius: float = 0.1, norm: bool = True) -> dict:

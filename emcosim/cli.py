@@ -176,10 +176,10 @@ def _read(name: str, fmu_dir: str | None = None):
     return read_scenario(_resolve(name), fmu_dir=fmu_dir)
 
 
-def default_record(scenario) -> list[str]:
+def default_record(scenario) -> list[str] | None:
     """Every output connector and every input that no connection feeds (in component order): each
     connected value once. An input fed through a linear transformation differs from its source and
-    is recorded too."""
+    is recorded too. None (the master's default) for a scenario without such connectors."""
     fed = {c.end for c in scenario.connections if c.factor == 1.0 and c.offset == 0.0}
     names = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
              if k.kind == "output" or (k.kind == "input" and f"{c.name}.{k.name}" not in fed)]

@@ -107,7 +107,7 @@ def finite_or_none(x):
     """A JSON value: non-finite numbers (a band never reached) become null; containers recursively."""
     if isinstance(x, dict):
         return {k: finite_or_none(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
+    if isinstance(x, (list, tuple, np.ndarray)):
         return [finite_or_none(v) for v in x]
     if isinstance(x, (float, np.floating)):
         return float(x) if math.isfinite(x) else None

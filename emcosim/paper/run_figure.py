@@ -19,7 +19,7 @@ from . import report
 def run_figure(scenario: Scenario, result, start_values: dict | None = None) -> FigureSpec | None:
     """The figure of a run of a suite scenario, or None if the scenario is not one (no plant and
     controller FMU of this suite) or the result lacks the plant state or the input."""
-    from .design_facts import violated_conditions
+    from . import design_facts
     from .reproduce import plant_and_controller, run_from_result
     from .sweep import with_values
 
@@ -31,11 +31,10 @@ def run_figure(scenario: Scenario, result, start_values: dict | None = None) -> 
     if any(n not in result.columns for n in needed):
         return None
     values = {k: float(v) for k, v in (start_values or {}).items() if _is_number(v)}
+    designed = with_values(scenario, values) if values else scenario
     try:
-        designed = with_values(scenario, values) if values else scenario
         run = run_from_result(scenario.name, scenario.name, designed, result)
-        from .certify import design_from_scenario
-        run.notes = [text for _, text in violated_conditions(design_from_scenario(designed))]
+        run.notes = [text for _, text in design_facts.violated_conditions(design_facts.design(designed))]
     except ValueError as exc:                  # a --set value the design refuses
         raise ScenarioError(f"--plot: {exc}") from None
     return figure(run, scenario.description or scenario.name)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .report import finite_or_none
 from .sweep import METRICS
 
 METRIC_LABELS = {
@@ -58,7 +59,7 @@ def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
     lines += ["", "settling_time_2pct inf: the error never stays in the 2 % band of |e(0)| within the horizon "
                   "(null in sweep.json)."]
     (out / "sweep.md").write_text("\n".join(lines) + "\n")
-    clean = [{k: _finite_or_none(v) for k, v in r.items()} for r in table]     # strict JSON: no Infinity/NaN
+    clean = [finite_or_none(r) for r in table]                             # strict JSON: no Infinity/NaN
     (out / "sweep.json").write_text(json.dumps({"info": info, "rows": clean}, indent=1, default=str))
     return [out / "sweep.csv", out / "sweep.md", out / "sweep.json"]
 
@@ -76,11 +77,6 @@ def _cell(v) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v).replace("|", "/")
-
-
-def _finite_or_none(v):
-    """JSON value: non-finite numbers (a metric of a run that never enters the band) become null."""
-    return None if isinstance(v, float) and not math.isfinite(v) else v
 
 
 def replot(folder: Path, out: Path | None = None, prefix: str = "sweep", title: str = "") -> list[Path]:
@@ -137,19 +133,9 @@ def _values_at(rows: list[dict], point: dict[str, float], metric: str, horizon: 
     return vals[np.isfinite(vals)], unsettled
 
 
-def _describe(fig, data: dict) -> dict:
+def _describe(data: dict) -> dict:
     """PNG metadata: the figure's data as JSON in 'Description' (strict JSON: null for n/a)."""
-    return {"Description": json.dumps(_finite_or_none_deep(data), allow_nan=False)}
-
-
-def _finite_or_none_deep(x):
-    if isinstance(x, dict):
-        return {k: _finite_or_none_deep(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple, np.ndarray)):
-        return [_finite_or_none_deep(v) for v in x]
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    return x
+    return {"Description": json.dumps(finite_or_none(data), allow_nan=False)}
 
 
 def _lines(rows, name, values, units, path: Path, title: str, horizon: float | None) -> Path:
@@ -186,7 +172,7 @@ def _lines(rows, name, values, units, path: Path, title: str, horizon: float | N
         ax.set_xlabel(_label(name, units))
     fig.suptitle(title + ("   (dotted: run failed or metric not finite)" if any_failed else ""), fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100, metadata=_describe(fig, meta))
+    fig.savefig(path, dpi=100, metadata=_describe(meta))
     plt.close(fig)
     return path
 
@@ -250,7 +236,7 @@ def _heatmap(data: dict, path: Path, title: str) -> Path:
     sub = data["title"] + ("\n(blank: not settled within the horizon, or n/a: run failed)" if missing else "")
     ax.set_title(f"{title}\n{sub}" if title else sub, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100, metadata=_describe(fig, data))
+    fig.savefig(path, dpi=100, metadata=_describe(data))
     plt.close(fig)
     return path
 

@@ -68,7 +68,7 @@ def test_nan_reaching_a_controller_mid_run(tmp_path, faulty_fmu, fmu_folder, tal
     assert "input q = nan is not finite" in line, line
     header, rows = read_csv(out)
     assert [r[0] for r in rows] == pytest.approx([k * 1e-3 for k in range(6)], abs=1e-15)
-    q = header.index("ctrl.q")
+    q = header.index("source.y")                 # the value ctrl.q receives (each connected value recorded once)
     assert all(math.isfinite(r[q]) for r in rows[:-1]) and math.isnan(rows[-1][q])
     tally.add("failing_components", "NaN into controller", "clean_error")
 

@@ -394,7 +394,7 @@ def _theorem1_iii_claim(plant: str, f: dict) -> Claim:
     held = [n for n, r in paper.items() if r["verdict"] == "holds"]
     search = f["search"]
     verdict = HOLDS if (held or search["holds"]) else FAILS
-    where = {"MEMS": "Sec. 7.1 (eq. cond3T2)", "Maglev": "Sec. 7.2"}[plant]
+    where = {"MEMS": "Sec. 7.1, eq. (cond3T2)", "Maglev": "Sec. 7.2"}[plant]
     grid = "; ".join(f"{k} in {{{', '.join(f'{v:g}' for v in vals)}}}" for k, vals in f["grid"].items())
     worst = max(paper.values(), key=lambda r: r["gamma1/gamma2"] or 0)
     nums = {"scenarios at the paper's gains where (iii) holds": f"{len(held)} of {len(paper)}",

@@ -1,7 +1,7 @@
 """Command line interface `emcosim`: run, export and inspect SSP scenarios.
 
     emcosim run SCENARIO [--stop-time T] [--step-size H] [--set component.variable=value ...]
-                         [--output results.csv] [--plot results.png]
+                         [--output results.csv] [--plot results.png] [--record a.x,b.y]
     emcosim export SCENARIO -o loop.fmu
     emcosim info [SCENARIO ...]
     emcosim reproduce [--out DIR]
@@ -16,7 +16,9 @@ NAME.partial.csv or NAME.partial/, never a half-written NAME.csv).
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -29,9 +31,25 @@ def scenario_dirs() -> list[Path]:
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
+NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--radius")
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def _join_negative_numbers(argv: list[str]) -> list[str]:
+    """`--step-size -1e-5` as `--step-size=-1e-5`: argparse takes '-1e-5' for an option (it only
+    recognises negative numbers without an exponent), so the value would be missing."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1] in NUMBER_OPTIONS and NEGATIVE_NUMBER.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_numbers(sys.argv[1:] if argv is None else list(argv)))
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
@@ -61,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="emcosim", description="Co-simulation of SSP scenarios of FMI 2.0 FMUs.")
+    p.add_argument("--version", action="version", version=f"emcosim {_version()}")
     sub = p.add_subparsers(dest="command")
     ssp = _archive_options()
 
@@ -72,8 +91,15 @@ def _parser() -> argparse.ArgumentParser:
                      help="override a parameter or input start value (repeatable)")
     run.add_argument("--output", "-o", help="results CSV (default: SCENARIO_NAME.csv); written as the run goes "
                                            "and renamed into place at the end (a failed run: NAME.partial.csv)")
-    run.add_argument("--plot", help="also plot the recorded variables to this image file")
-    run.add_argument("--record", help="comma-separated full variable names to record (default: every connector)")
+    run.add_argument("--plot", metavar="FILE.png",
+                     help="also draw the run to this image file (.png, .svg, .pdf): for the paper's scenarios "
+                          "q against q*, the error q - q*, u, x_e and H in physical units; for any other "
+                          "scenario one axis per recorded variable, in its unit")
+    run.add_argument("--record", metavar="COMPONENT.VARIABLE,...",
+                     help="comma-separated full variable names to record, e.g. plant.q,controller.u "
+                          "(`emcosim info SCENARIO` lists every variable). Default: every output connector "
+                          "and every unconnected input, so each connected value is recorded once (a "
+                          "connection's two ends carry the same value)")
     run.add_argument("--tolerance", type=float,
                      help="error-controlled communication steps (step doubling with FMU-state rollback); "
                           "the step size is then the maximum step")
@@ -155,16 +181,63 @@ def _limits(args):
                          allow_external=args.allow_external)
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("emcosim")
+    except PackageNotFoundError:                    # run from a checkout without installing
+        return "unknown (not installed)"
+
+
+def scenario_names() -> list[str]:
+    """The bare scenario names found in scenario_dirs()."""
+    from .engine.ssd import SSD_NAME
+    return sorted({d.name for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file()})
+
+
+def _resolve(name: str, limits=None) -> Path:
+    """The .ssd of a scenario (see engine.ssd.resolve_path); a bare name that matches no scenario
+    gets the closest names suggested."""
+    from .engine.ssd import resolve_path
+    try:
+        return resolve_path(name, scenario_dirs(), limits)
+    except ScenarioError:
+        if len(Path(name).parts) == 1 and not Path(name).exists():
+            close = difflib.get_close_matches(name, scenario_names(), n=3, cutoff=0.6)
+            if close:
+                raise ScenarioError(f"{name}: no such scenario; did you mean {' or '.join(close)}? "
+                                    "(`emcosim info` lists them)") from None
+        raise
+
+
 def _read(name: str, fmu_dir: str | None = None, args=None):
     from .engine.ssd import read_scenario
-    return read_scenario(name, scenario_dirs(), fmu_dir=fmu_dir, limits=None if args is None else _limits(args))
+    limits = None if args is None else _limits(args)
+    return read_scenario(_resolve(name, limits), fmu_dir=fmu_dir, limits=limits)
+
+
+def default_record(scenario) -> list[str] | None:
+    """Every output connector and every input that no connection feeds (in component order): each
+    connected value once. An input fed through a linear transformation differs from its source and
+    is recorded too. None (the master's default) for a scenario without such connectors."""
+    fed = {c.end for c in scenario.connections if c.factor == 1.0 and c.offset == 0.0}
+    names = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
+             if k.kind == "output" or (k.kind == "input" and f"{c.name}.{k.name}" not in fed)]
+    return names or None
+
+
+def _positive(value: float | None, option: str) -> None:
+    if value is not None and not value > 0:
+        raise ScenarioError(f"{option} {value:g}: must be a positive number")
 
 
 def cmd_run(args) -> int:
     from .engine.master import MAX_STEPS, simulate
-    from .engine.results import ResultFile, check_destination, plot_csv
+    from .engine.results import Result, ResultFile, check_destination
     from .progress import ProgressBar
 
+    _positive(args.step_size, "--step-size")
+    _positive(args.tolerance, "--tolerance")
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:
@@ -172,7 +245,7 @@ def cmd_run(args) -> int:
         if not sep or "." not in name:
             raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
         start_values[name.strip()] = value.strip()
-    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else None
+    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else default_record(scenario)
     if args.plot:
         check_destination(Path(args.plot))
     sink = ResultFile(args.output or f"{scenario.name}.csv", what=scenario.name)   # checked before the run
@@ -193,13 +266,28 @@ def cmd_run(args) -> int:
     for warning in getattr(result, "warnings", []):
         print(f"emcosim: warning: {warning}", file=sys.stderr)
     if sink.final is not None and args.plot:
-        plot_csv(sink.final, args.plot, title=scenario.name)
+        plot_run(scenario, Result.from_csv(sink.final), args.plot, start_values)
     if failure is not None:
         if sink.final is not None:
             failure.args = (f"{failure}; {sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}",)
         raise failure
     print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {args.plot}" if args.plot else ""))
     return 0
+
+
+def plot_run(scenario, result, path: str, start_values: dict) -> None:
+    """The paper's figure of a run for this suite's scenarios (emcosim.paper.run_figure), else the
+    engine's figure of the recorded variables in their units."""
+    from .engine import plotting
+    from .paper.run_figure import run_figure
+
+    spec = run_figure(scenario, result, start_values)
+    if spec is None:
+        spec = plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
+    try:
+        plotting.save(plotting.draw(spec), path)
+    except ValueError as exc:                       # e.g. an image format matplotlib does not know
+        raise ScenarioError(f"--plot {path}: {exc}") from None
 
 
 def cmd_export(args) -> int:
@@ -222,10 +310,10 @@ def cmd_info(args) -> int:
         paths = sorted(str(d) for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file())
         if not paths:
             raise ScenarioError("no scenarios found (looked in ./scenarios and the project's scenarios/)")
+    scenarios = [_read(path, args.fmu_dir, args) for path in paths]        # every error before any output
     fmus = {}
     print("Scenarios:")
-    for path in paths:
-        s = _read(path, args.fmu_dir, args)
+    for s in scenarios:
         h = f"{s.step_size:g} s" if s.step_size else "?"
         stop = f"{s.stop_time:g} s" if s.stop_time is not None else "?"
         print(f"  {s.name}: stop time {stop}, step {h}")
@@ -271,9 +359,8 @@ def _radius(text: str) -> float:
 
 def cmd_certify(args) -> int:
     from .paper.certify import certify_scenario
-    from .engine.ssd import resolve_path
 
-    path = resolve_path(args.scenario, scenario_dirs(), _limits(args))
+    path = _resolve(args.scenario, _limits(args))
     try:
         cert = certify_scenario(path, radius=args.radius, include_start=args.include_start)
     except ValueError as exc:                       # an invalid design: a parameter the paper's conditions refuse
@@ -311,7 +398,8 @@ def cmd_sweep(args) -> int:
         files = write_table(rows, folder.path, info)
         if not args.no_plots:
             horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
-            files += plot(rows, dict(grid), info["units"], folder.path, title=f"{scenario.name}, horizon {horizon:g} s")
+            files += plot(rows, dict(grid), info["units"], folder.path, title=f"{scenario.name}, horizon {horizon:g} s",
+                          horizon=horizon)
     except BaseException as exc:
         if stream.rows == 0:
             folder.discard()

@@ -92,6 +92,17 @@ class Result:
             raise KeyError(f"no recorded variable '{name}' (recorded: {', '.join(self.columns)})") from None
         return np.array([r[i] for r in self._in_memory()], dtype=float)
 
+    @classmethod
+    def from_csv(cls, path: str | Path) -> "Result":
+        """The rows of a results file (see `read_csv`) back in memory."""
+        data = read_csv(path)
+        result = cls([name for name in data if name != "time"])
+        columns = [data["time"]] + [data[name] for name in result.columns]
+        for row in zip(*columns):
+            result.rows.append([float(v) for v in row])
+        result.n_rows = len(result.rows)
+        return result
+
     def write_csv(self, path: str | Path, note: str | None = None) -> None:
         """Write the rows in memory to `path` (atomically); `note` becomes a first comment line."""
         write_csv(path, ["time", *self.columns], self._in_memory(), note)
@@ -563,41 +574,5 @@ def _last_time(fd: int, end: int | None = None) -> float | None:
         return None                                       # only the header is left
 
 
-def plot(result: Result, path: str | Path, title: str = "") -> None:
-    """One panel per component, its recorded variables normalised by their maximum magnitude."""
-    plot_columns({"time": result.time, **{c: result[c] for c in result.columns}}, path, title)
-
-
-def plot_csv(csv_path: str | Path, path: str | Path, title: str = "") -> None:
-    """`plot` of a results file."""
-    plot_columns(read_csv(csv_path), path, title)
-
-
-def plot_columns(data: dict[str, np.ndarray], path: str | Path, title: str = "") -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    columns = [c for c in data if c != "time"]
-    components = list(dict.fromkeys(c.partition(".")[0] for c in columns))
-    fig, axes = plt.subplots(len(components), 1, sharex=True, figsize=(8, 2.2 * len(components) + 0.6),
-                             squeeze=False)
-    t = data["time"]
-    for ax, comp in zip(axes[:, 0], components):
-        for name in [c for c in columns if c.partition(".")[0] == comp]:
-            y = data[name]
-            scale = np.max(np.abs(y)) if len(y) and np.max(np.abs(y)) > 0 else 1.0
-            ax.plot(t, y / scale, label=f"{name} / {scale:.3g}")
-        ax.set_ylabel(comp)
-        ax.legend(fontsize="small", loc="best")
-        ax.grid(True, alpha=0.3)
-    axes[-1, 0].set_xlabel("time [s]")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 __all__ = ["Result", "ResultFile", "OutputFolder", "Interrupted", "read_csv", "write_csv", "partial_note",
-           "plot", "plot_csv", "check_destination", "mark_orphans", "reason_of"]
+           "check_destination", "mark_orphans", "reason_of"]

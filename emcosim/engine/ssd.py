@@ -10,6 +10,11 @@ Files may be in any encoding XML allows (declared in the XML declaration or by a
 An .ssp archive is unpacked with limits (`ArchiveLimits`: total size and number of files) and its
 .ssd may only reference files inside the archive unless `allow_external` is set.
 
+Written files also run in other SSP engines (docs/ssp-engines.md): the System carries, beside the
+OSP annotation, OpenModelica's (`oms:FixedStepMaster stepSize`, which OMSimulator needs to know the
+system is a fixed-step co-simulation), its name is an identifier (OMSimulator refuses '.' and '-'),
+and every .ssv parameter set is named PARAMETER_SET (ecos applies a set only when selected by name).
+
 Element prefixes are written exactly as `ssd:`, `ssc:`, `ssv:`: libcosim's parser matches the
 prefixed names literally. Reading is namespace-aware. Every error is a `ScenarioError` whose
 message names the file and the element.
@@ -36,8 +41,11 @@ NS = {
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
 OSP_ANNOTATION = "com.opensimulationplatform"
+OMS_ANNOTATION = "org.openmodelica"
+PARAMETER_SET = "initialValues"       # the one name of every .ssv set: `ecos` applies the sets of the name it is given
 SSD_NAME = "SystemStructure.ssd"
 TYPES = ("Real", "Integer", "Boolean", "String")
 
@@ -459,16 +467,25 @@ def parameter_set_xml(name: str, parameters: list[Parameter], notes: list[str] =
     return "\n".join(lines)
 
 
+def identifier(name: str) -> str:
+    """`name` as an identifier (letters, digits, '_'; starting with a letter), as OMSimulator wants
+    model and system names: every other character becomes '_'."""
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", name)
+    return ident if ident[:1].isalpha() else f"s_{ident}"
+
+
 def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float) -> str:
     """The text of an .ssd file. `sources` maps component names to the FMU paths as written
     (relative to the .ssd); each component binds the .ssv files in its `parameter_sources`.
-    `scenario.notes` become XML comments at the top, `description`s become attributes."""
+    `scenario.notes` become XML comments at the top, `description`s become attributes. The System
+    is named `identifier(scenario.name)` and carries OpenModelica's fixed-step annotation; the
+    DefaultExperiment carries the OSP one (both give `step_size`)."""
     ns = " ".join(f'xmlns:{p}="{u}"' for p, u in NS.items())
     desc = f' description="{_esc(scenario.description)}"' if scenario.description else ""
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
     lines += [f"<!-- {_comment(n)} -->" for n in scenario.notes]
     lines.append(f'<ssd:SystemStructureDescription {ns} version="1.0" name="{_esc(scenario.name)}"{desc}>')
-    lines.append(f'  <ssd:System name="{_esc(scenario.name)}">')
+    lines.append(f'  <ssd:System name="{_esc(identifier(scenario.name))}">')
     lines.append("    <ssd:Elements>")
     for c in scenario.components:
         cdesc = f' description="{_esc(c.description)}"' if c.description else ""
@@ -495,6 +512,7 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
         else:
             lines.append(f"      <ssd:Connection {attrs}/>")
     lines.append("    </ssd:Connections>")
+    lines += ["    <ssd:Annotations>", *oms_annotation(step_size, "      "), "    </ssd:Annotations>"]
     lines.append("  </ssd:System>")
     stop = f' stopTime="{scenario.stop_time!r}"' if scenario.stop_time is not None else ""
     lines.append(f'  <ssd:DefaultExperiment startTime="{scenario.start_time!r}"{stop}>')
@@ -506,6 +524,20 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
     lines.append("  </ssd:DefaultExperiment>")
     lines += ["</ssd:SystemStructureDescription>", ""]
     return "\n".join(lines)
+
+
+def oms_annotation(step_size: float, indent: str = "") -> list[str]:
+    """OpenModelica's annotation of a fixed-step co-simulation system (what OMSimulator writes and
+    reads: it must be the first ssc:Annotation of the System's ssd:Annotations)."""
+    return [indent + line for line in [
+        f'<ssc:Annotation type="{OMS_ANNOTATION}">',
+        "  <oms:Annotations>",
+        "    <oms:SimulationInformation>",
+        f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="0.0001" '
+        'relativeTolerance="0.0001"/>',
+        "    </oms:SimulationInformation>",
+        "  </oms:Annotations>",
+        "</ssc:Annotation>"]]
 
 
 def _esc(s: str) -> str:

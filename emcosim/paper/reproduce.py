@@ -50,15 +50,30 @@ LABELS = {
 }
 
 
+def plant_and_controller(scenario) -> tuple[str, str]:
+    """Names of the scenario's plant and controller components (by their FMUs' model names)."""
+    from components import catalog
+
+    by_model = {Path(c.source).stem: c.name for c in scenario.components}
+    plant = next((by_model[m] for m in catalog.PLANTS if m in by_model), None)
+    controller = next((by_model[m] for m in catalog.GAINS if m in by_model), None)
+    if plant is None or controller is None:
+        raise ValueError(f"{scenario.path}: no plant and controller FMU of this suite")
+    return plant, controller
+
+
 def run_from_result(name: str, label: str, scenario, result) -> report.Run:
     """A report.Run from the master's recorded columns plus the design's target eta*(t)."""
     d = design_from_scenario(scenario)
+    plant, controller = plant_and_controller(scenario)
     t = result.time
     jets = [None if d.reference is None else d.reference.jet(tt) for tt in t]
     eta_star = np.array([d.controller.target(j) for j in jets])
-    plant = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
-    return report.Run(name, plant, label, t, result["plant.q"], result["plant.p"], result["plant.x_e"],
-                      result["controller.u"], eta_star)
+    model = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
+    H = result[f"{plant}.H"] if f"{plant}.H" in result.columns else None
+    return report.Run(name, model, label, t, result[f"{plant}.q"], result[f"{plant}.p"], result[f"{plant}.x_e"],
+                      result[f"{controller}.u"], eta_star,
+                      horizon=float(scenario.stop_time) if scenario.stop_time is not None else float("nan"), H=H)
 
 
 def _simulate_case(name: str, stop_time: float | None, fmu_dir: str | Path | None,
@@ -108,8 +123,21 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
         columns, rows, walls[name] = results[name]
         result = Result(columns)
         result.rows = rows
-        runs[role] = run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name), result)
+        runs[role] = with_conditions(run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name),
+                                                     result), read_scenario(SCENARIOS / name))
     return runs, walls
+
+
+def with_conditions(run: report.Run, scenario) -> report.Run:
+    """The run with the conditions of its theorem that its design violates in `notes`, and named in
+    its label (e.g. maglev cases 1 and 3: K_e < 0, erratum 4)."""
+    from . import design_facts
+
+    violated = design_facts.violated_conditions(design_facts.design(scenario))
+    run.notes = [text for _, text in violated]
+    if violated:
+        run.label += "; violates " + ", ".join(name.split(" (")[0] for name, _ in violated)
+    return run
 
 
 def _done(i: int, n: int, name: str, outcome) -> str:
@@ -141,50 +169,49 @@ def _ignore_sigint() -> None:
 
 
 def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors, results) -> dict:
-    """Longest runs first (by communication steps), in `jobs` worker processes; a status line of
-    every running scenario's progress (redrawn on a terminal, every few seconds otherwise)."""
-    order = sorted(names.values(), key=lambda n: -_n_steps(n, stop_time))
+    """Longest runs first (by communication steps), in `jobs` worker processes; one bar (tqdm, on a
+    terminal only) of the communication steps done over all scenarios, and a line per finished one."""
+    steps = {n: _n_steps(n, stop_time) for n in names.values()}
+    order = sorted(names.values(), key=lambda n: -steps[n])
     context = multiprocessing.get_context("spawn")              # a fresh interpreter per worker (pythonfmu)
     fraction = {}
-    tty = getattr(out, "isatty", lambda: False)()
-    last_line, finished = 0.0, 0
-    with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context, initializer=_ignore_sigint) as pool:
-        try:
-            queue = manager.Queue()
-            futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
-            pending = set(futures)
-            print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
-        except BaseException:
-            _stop_workers(pool)
-            raise
-        while pending:
+    finished = 0
+    print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
+    bar = ProgressBar("reproduce", stream=out)
+    try:
+        with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context,
+                                                               initializer=_ignore_sigint) as pool:
             try:
-                stopping.check()                                   # Ctrl-C / SIGTERM: stop the workers
-                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                queue = manager.Queue()
+                futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
+                pending = set(futures)
             except BaseException:
                 _stop_workers(pool)
                 raise
-            while not queue.empty():
-                name, f = queue.get()
-                fraction[name] = f
-            for future in done:
-                name = futures[future]
+            while pending:
                 try:
-                    outcome = results[name] = future.result()
-                except ScenarioError as exc:
-                    outcome = errors[name] = exc
-                except Exception as exc:                           # a worker died (e.g. the host crashed)
-                    outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
-                fraction.pop(name, None)
-                finished += 1
-                print(("\r\033[K" if tty else "") + _done(finished, len(names), name, outcome),
-                      file=out, flush=True)
-            now = time.monotonic()
-            if fraction and (tty or now - last_line > 5.0):
-                line = "  ".join(f"{n} {100 * f:.0f}%" for n, f in fraction.items())
-                out.write(f"\r\033[Krunning: {line}" if tty else f"running: {line}\n")
-                out.flush()
-                last_line = now
+                    stopping.check()                               # Ctrl-C / SIGTERM: stop the workers
+                    done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                except BaseException:
+                    _stop_workers(pool)
+                    raise
+                while not queue.empty():
+                    name, f = queue.get()
+                    fraction[name] = f
+                for future in done:
+                    name = futures[future]
+                    try:
+                        outcome = results[name] = future.result()
+                    except ScenarioError as exc:
+                        outcome = errors[name] = exc
+                    except Exception as exc:                       # a worker died (e.g. the host crashed)
+                        outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
+                    fraction[name] = 1.0
+                    finished += 1
+                    bar.write(_done(finished, len(names), name, outcome))
+                bar(sum(steps[n] * f for n, f in fraction.items()) / sum(steps.values()))
+    finally:
+        bar.close()
     return results
 
 
@@ -211,21 +238,98 @@ def ensure_fmus(out=sys.stderr) -> None:
 
 
 def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
-    files = []
+    """The paper's Figs. 1-4 (PNG and SVG) from the runs there are."""
+    return [f for spec, stem in figure_specs(runs) for f in report.save_figure(spec, out / stem)]
+
+
+def figure_specs(runs: dict[str, report.Run]) -> list[tuple[report.FigureSpec, str]]:
+    """(spec, file stem) of each paper figure the runs allow."""
+    specs = []
     if {"mems_reg_0", "mems_reg_1"} <= runs.keys():
-        files += report.figure_states([runs["mems_reg_0"], runs["mems_reg_1"]],
-                                      "MEMS regulation to q_d = 30 um without and with coupled damping (Theorem 2, Fig. 1)",
-                                      out / "fig1_mems_regulation", "q_d (eta_d)")
+        specs.append((report.states_figure([runs["mems_reg_0"], runs["mems_reg_1"]],
+                                           "MEMS regulation to q_d = 30 µm without and with coupled damping "
+                                           "(Theorem 2, Fig. 1)", "q_d (eta_d)"), "fig1_mems_regulation"))
     if {"mems_track_0", "mems_track_1"} <= runs.keys():
-        files += report.figure_states([runs["mems_track_0"], runs["mems_track_1"]],
-                                      "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping (Fig. 2)",
-                                      out / "fig2_mems_tracking", "q* (eta*)")
+        specs.append((report.states_figure([runs["mems_track_0"], runs["mems_track_1"]],
+                                           "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping "
+                                           "(Fig. 2)", "q* (eta*)"), "fig2_mems_tracking"))
     maglev = [runs[f"maglev_{i}"] for i in range(1, 5) if f"maglev_{i}" in runs]
     if len(maglev) == 4:
-        files += report.figure_states(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, Fig. 3)",
-                                      out / "fig3_maglev_tracking", "q* (eta*)")
-        files += report.figure_error_norms(maglev, runs["maglev_3"], out / "fig4_maglev_error_norms")
-    return files
+        specs.append((report.states_figure(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, "
+                                                   "Fig. 3)", "q* (eta*)"), "fig3_maglev_tracking"))
+        specs.append((report.error_norm_figure(maglev, runs["maglev_3"]), "fig4_maglev_error_norms"))
+    return specs
+
+
+def design_facts_of(names: dict[str, str] = PAPER_CASES) -> dict:
+    """What the claims need beyond the runs (emcosim.paper.design_facts): each role's dominant
+    linearized mode, Theorem 1 (iii) at the paper's gains and on a grid of gains, and the damping
+    of the linearized maglev loop over R_e_bar. About 10 s; no simulation."""
+    from components import maglev
+    from . import design_facts as facts
+
+    scen = {role: read_scenario(SCENARIOS / name) for role, name in names.items()}
+    modes = {role: facts.dominant_mode(facts.design(s)) for role, s in scen.items()}
+    iii = {}
+    for plant, prefix, grid in [
+            ("MEMS", "mems", {"controller.rbar_e": [1.0, 10.0, 100.0], "controller.D_d": [-4.0, -1.0, -0.4, 0.0]}),
+            ("Maglev", "maglev", {"controller.R_e_bar": [0.82, 2.82, 10.0], "controller.k_c": [1.0, 20.0, 200.0],
+                                  "controller.D_d": [maglev.D_d_from_paper(D) for D in (0.0, -1.0, -2.0)]})]:
+        theirs = {s.name: facts.theorem1_iii(facts.design(s)) for role, s in scen.items() if role.startswith(prefix)}
+        tracking = next(s for role, s in scen.items() if role.startswith(prefix) and "track" in s.name)
+        iii[plant] = {"paper": theirs, "grid": grid, "search": facts.theorem1_iii_search(tracking, grid)}
+    overdamping = []
+    if "maglev_1" in scen:
+        for D in (0.0, -1.0):
+            for R in (0.82, 2.82, 5.0, 10.0, 20.0, 50.0):
+                d = facts.design(scen["maglev_1"], {"controller.D_d": maglev.D_d_from_paper(D), "controller.R_e_bar": R})
+                overdamping.append({"D_d paper": D, "R_e_bar": R, **facts.dominant_mode(d)})
+    return {"modes": modes, "iii": iii, "overdamping": overdamping}
+
+
+def choices(names: dict[str, str] = PAPER_CASES) -> list[str]:
+    """'Choices the paper does not make' as short paragraphs, from the scenario table
+    (emcosim.paper.scenarios): first what several scenarios share (one paragraph per group), then one
+    per scenario (what it is, its own choices, its horizon and default step)."""
+    from .scenarios import cases
+
+    table = [c for c in cases() if c.name in names.values()]
+    holders: dict[str, list[str]] = {}
+    for c in table:
+        for n in c.notes:
+            holders.setdefault(n, []).append(c.name)
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for note, who in holders.items():
+        if len(who) > 1:
+            groups.setdefault(tuple(who), []).append(note)
+    out = []
+    for plant in dict.fromkeys(c.plant for c in table):
+        everyone = [c.name for c in table if c.plant == plant]
+        for who, notes in groups.items():
+            if who[0] in everyone:
+                head = f"All {plant} scenarios" if list(who) == everyone else ", ".join(who)
+                out.append(f"**{head}.** " + " ".join(_sentence(n) for n in notes))
+        for c in (c for c in table if c.plant == plant):
+            own = [n for n in c.notes if len(holders[n]) == 1]
+            horizon = "" if any("Horizon" in n for n in c.notes) else f"Horizon {c.stop_time:g} s, "
+            out.append(f"**{c.name}.** {_sentence(c.description)} " + "".join(f"{_sentence(n)} " for n in own)
+                       + f"{horizon}{'d' if horizon else 'D'}efault communication step {c.step_size:g} s.")
+    return out
+
+
+def _sentence(text: str) -> str:
+    text = text.strip()
+    return text if text.endswith(".") else text + "."
+
+
+def shortened_banner(runs: dict[str, report.Run]) -> str:
+    short = {r.name: r for r in runs.values() if r.shortened}
+    if not short:
+        return ""
+    return (f"Shortened runs: {len(short)} of {len(runs)} scenarios were cut short ("
+            + ", ".join(f"{n} to {r.t[-1]:g} s of {r.horizon:g} s" for n, r in short.items())
+            + "). Their figures and metrics cover the shortened horizon only, and every verdict that needs the "
+              "full horizon is 'not decided'.")
 
 
 def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=None,
@@ -267,11 +371,8 @@ def _reproduce_into(out_path: Path, stop_time, out, fmu_dir, jobs, finished: dic
     runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed,
                                       finished=finished)
     figures = write_figures(runs, out_path)
-    notes = []
-    for name in PAPER_CASES.values():
-        notes += [n for n in read_scenario(SCENARIOS / name).notes if n not in notes and "Generated by" not in n]
-    content = report.write_reports({r.name: r for r in runs.values()},
-                                   {role: runs[role].name for role in runs}, out_path, notes)
+    content = report.write_reports({r.name: r for r in runs.values()}, {role: runs[role].name for role in runs},
+                                   out_path, choices(), design_facts_of(), shortened_banner(runs))
     (out_path / "runs.json").write_text(json.dumps({"wall_time_s": walls,
                                                     "failed": {n: str(e) for n, e in failed.items()}}, indent=1))
     print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json", file=out)

@@ -109,13 +109,21 @@ def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, 
     return [{**dict(zip([n for n, _ in grid], combo)), **draw} for combo in combos for draw in draws]
 
 
-def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float]) -> dict[str, str]:
+def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float],
+                     options: dict[str, str] | None = None) -> dict[str, str]:
     """Check every swept name with the master's own checks (component and variable exist, can be set,
-    is Real) and return its unit from the FMU's modelDescription ('' if none)."""
+    is Real) and return its unit from the FMU's modelDescription ('' if none). `options` names the
+    command-line option of each name (--grid or --sample) for the error message."""
     from ..engine import master
     from ..engine.session import check_start_values
 
-    check_start_values(scenario, {n: example[n] for n in names})
+    for name in names:
+        option = (options or {}).get(name, "--grid/--sample")
+        try:
+            check_start_values(scenario, {name: example[name]})
+        except ScenarioError as exc:                  # the master says --set; the user typed --grid/--sample
+            text = str(exc)
+            raise ScenarioError(option + text[len("--set"):] if text.startswith("--set ") else text) from None
     instances = master.load(scenario)
     units = {}
     for name in names:
@@ -275,40 +283,35 @@ def _sigint_ignored() -> Iterator[None]:
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             stop_time: float | None = None, step_size: float | None = None,
             stream: TextIO | None = sys.stderr, on_row=None) -> list[dict]:
-    """Submit every run to the cluster and return the rows in the order of `runs`; progress
-    ('runs done / total') goes to `stream`; `on_row(i, row)` is called as each run finishes."""
+    """Submit every run to the cluster and return the rows in the order of `runs`; a progress bar
+    of the runs done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is
+    called as each run finishes."""
     from dask.distributed import as_completed
+
+    from ..progress import Counter
 
     futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, pure=False)
                for values in runs]
     index = {f.key: i for i, f in enumerate(futures)}
     rows: list[dict | None] = [None] * len(runs)
-    tic = time.monotonic()
     failed = 0
-    for done, future in enumerate(as_completed(futures), 1):
-        i = index[future.key]
-        try:
-            rows[i] = future.result()
-        except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
-            rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
-        if on_row is not None:
-            on_row(i, rows[i])
-        failed += rows[i]["status"] != "ok"
-        _progress(stream, done, len(runs), failed, time.monotonic() - tic)
+    bar = None if stream is None else Counter(len(runs), "sweep", "run", stream)
+    try:
+        for future in as_completed(futures):
+            i = index[future.key]
+            try:
+                rows[i] = future.result()
+            except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
+                rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+            if on_row is not None:
+                on_row(i, rows[i])
+            failed += rows[i]["status"] != "ok"
+            if bar is not None:
+                bar.advance(f"{failed} failed" if failed else "")
+    finally:
+        if bar is not None:
+            bar.close()
     return rows
-
-
-def _progress(stream: TextIO | None, done: int, total: int, failed: int, elapsed: float) -> None:
-    if stream is None:
-        return
-    tty = getattr(stream, "isatty", lambda: False)()
-    if not tty and done != total and done % max(1, total // 10):
-        return
-    text = f"sweep: {done}/{total} runs done" + (f" ({failed} failed)" if failed else "") + f", {elapsed:.1f} s"
-    stream.write(("\r" + text) if tty else text + "\n")
-    if tty and done == total:
-        stream.write("\n")
-    stream.flush()
 
 
 def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
@@ -320,7 +323,8 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
     the wall time and the throughput. `on_row(i, row)`: see `run_all`."""
     runs = points(grid, samples, n_samples, seed)
     names = list(runs[0])
-    units = check_parameters(scenario, names, runs[0])
+    options = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
+    units = check_parameters(scenario, names, runs[0], options)
     fmu_dir = _common_fmu_dir(scenario)
     tic = time.perf_counter()
     with dask_client(workers, scheduler, security) as client:

@@ -63,17 +63,29 @@ def scenario_copy(tmp_path: Path, name: str) -> Path:
 
 # ---- 1. a non-finite value never ends a run with exit 0 -------------------------------------------
 
-def test_nan_returned_with_ok_ends_the_run(fmu_dir, tmp_path, capsys):
-    """The issue's run: the controller cannot compute u at t = 3 ms and returns NaN with fmi2OK."""
+def test_the_issues_nan_run_ends_with_the_controllers_error(fmu_dir, tmp_path, capsys):
+    """The issue's run: the controller cannot compute u at t = 3 ms. It used to return NaN with fmi2OK;
+    now the FMU answers fmi2Error with the reason, and the run ends with the rows before it kept."""
     out = tmp_path / "x.csv"
     line = error_line(["run", "maglev_tracking_D0_R2.82", "--set", "reference.omega=200", "--stop-time", "0.003",
                        "--fmu-dir", str(fmu_dir), "-o", str(out)], capsys)
-    assert "controller.u = nan at t = 0.003 s" in line and "Maglev_Theorem3.fmu" in line, line
+    assert "component 'controller' failed in fmi2GetReal at t = 0.003 s" in line, line
+    assert "Maglev_Theorem3.fmu" in line and "infeasible reference" in line, line
     assert not out.exists()
     data = read_csv(partial_of(out))
     assert data["time"][-1] == pytest.approx(0.0025, rel=1e-12)
     assert all(np.all(np.isfinite(v)) for v in data.values())
-    assert "controller.u = nan" in partial_note(partial_of(out))
+    assert "infeasible reference" in partial_note(partial_of(out))
+
+
+def test_non_finite_output_returned_with_ok_ends_the_run(tmp_path, toys, capsys):
+    """A foreign FMU (the toy gain, built with plain pythonfmu) returns y = k x = 1e308 * 10 = inf with
+    fmi2OK: the master refuses the value, names it, and keeps no result under the final name."""
+    loop = toy_loop(tmp_path / "inf", toys, k=1e308, x0=10.0)
+    out = tmp_path / "r.csv"
+    line = error_line(["run", str(loop), "-o", str(out)], capsys)
+    assert "ctrl.y = inf at t = 0 s" in line and "not finite" in line, line
+    assert not out.exists()
 
 
 def test_non_finite_value_after_a_connection_transformation(tmp_path, toys, capsys):

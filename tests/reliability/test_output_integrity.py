@@ -47,10 +47,12 @@ def wait_for_rows(path_glob, folder: Path, rows: int, timeout: float = 60) -> Pa
     raise AssertionError(f"no {path_glob} with {rows} rows in {folder} after {timeout} s")
 
 
-def complete_rows(path: Path) -> list[list[float]]:
+def complete_rows(path: Path) -> list[dict[str, float]]:
+    """The rows of a result file, each as {column name: value} (comment lines skipped)."""
     with open(path, newline="") as f:
         lines = [x for x in f if not x.startswith("#")]
-    return [[float(v) for v in row] for row in csv.reader(lines[1:])]
+    header, *rows = list(csv.reader(lines))
+    return [dict(zip(header, map(float, row))) for row in rows]
 
 
 def test_two_runs_writing_the_same_file_never_leave_it_torn(toys, tmp_path, tally):
@@ -95,7 +97,7 @@ def test_kill_9_keeps_the_flushed_rows_and_the_next_start_cleans_up(toys, tmp_pa
     assert len(unpacked) == 2                                   # the two FMUs of the loop
     rows = complete_rows(incomplete)
     assert len(rows) >= 2000 and not out.exists()               # what was flushed before the kill
-    np.testing.assert_allclose([r[2] for r in rows], 0.99 ** np.arange(len(rows)), rtol=1e-9)
+    np.testing.assert_allclose([r["plant.x"] for r in rows], 0.99 ** np.arange(len(rows)), rtol=1e-9)
     later = emcosim(["run", str(loop), "--stop-time", "0.1", "-o", str(out), "--no-progress"], env=env)
     assert later.returncode == 0, later.stderr
     assert f"pid {proc.pid}) that was killed; marked partial" in later.stderr, later.stderr

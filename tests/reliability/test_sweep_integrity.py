@@ -27,17 +27,26 @@ from ..integrity_helpers import ROOT
 pytestmark = pytest.mark.reliability
 
 
+def finished_rows(folder: Path) -> int:
+    """Data rows in the table of a sweep that is still running (sweep.incomplete-PID/sweep.csv)."""
+    tables = list(folder.glob("sweep.incomplete-*/sweep.csv"))
+    if not tables:
+        return 0
+    lines = [x for x in tables[0].read_text().splitlines() if x and not x.startswith("#")]
+    return max(len(lines) - 1, 0)
+
+
 def test_interrupted_sweep_keeps_the_finished_runs(fmu_dir, tmp_path, tally):
     out = tmp_path / "sweep"
     proc = subprocess.Popen([sys.executable, "-m", "emcosim.cli", "sweep", "mems_regulation_Dd0", "--stop-time", "1e-3",
                              "--grid", "controller.D_d=-1:0:40", "--workers", "1", "--out", str(out),
                              "--fmu-dir", str(fmu_dir)], cwd=str(ROOT), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
-    progress = []
-    while not any("sweep: 8/40" in line for line in progress):
-        line = proc.stderr.readline()
-        assert line, f"the sweep ended early: {''.join(progress)}"
-        progress.append(line)
+    deadline = time.monotonic() + 300
+    while finished_rows(tmp_path) < 8:                 # the rows are appended to the table as runs finish
+        assert proc.poll() is None, f"the sweep ended early: {proc.communicate()[1]}"
+        assert time.monotonic() < deadline, "no 8 finished runs after 300 s"
+        time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGINT)                 # as a terminal's Ctrl-C: the whole process group
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err

@@ -5,12 +5,20 @@ states the closed loop it enforces: eta' = F_d grad H_d(eta, t), eq. (closedloop
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
 from . import closed_loop
 from .ph_plant import EMPlant, Jet, OneDOFPlant
+
+# Complex step of `Controller.u_derivative`: the imaginary perturbation of each input is at most
+# COMPLEX_STEP times its magnitude (or COMPLEX_STEP_FLOOR, for an input at zero), so the neglected
+# O(h^2) terms are ~1e-40 relative; Im(u) = h (du/dx) v then stays far above the subnormal range.
+COMPLEX_STEP = 1e-20
+COMPLEX_STEP_FLOOR = 1e-150
 
 
 def as_matrix(value, shape: tuple[int, int], name: str, owner: str) -> np.ndarray:
@@ -107,6 +115,34 @@ class Controller:
         """The control law for a OneDOFPlant: u from the numbers q, p, x_e and the jet
         (q*, dq*/dt, d2q*/dt2, d3q*/dt3) as numbers. Accepts complex numbers (complex-step derivatives)."""
         raise NotImplementedError
+
+    def u_derivative(self, inputs: Sequence[float], directions: Sequence[float]):
+        """sum_j du/dx_j v_j: the exact derivative of u along a direction v of the controller's inputs
+        x = (q, p, x_e) or, tracking, (q, p, x_e, q*, q*', q*'', q*''') (each a number for a one-DOF
+        plant, else q, p, x_e and the jet entries concatenated), by one complex-step evaluation of the
+        law (docs/derivations.md, "Controller Jacobians"). With v = dx/dt it is du/dt; with v = e_j,
+        the Jacobian's column j. A number for a one-DOF plant, else an array of shape (n_e,)."""
+        x, v = inputs, directions
+        if len(x) != len(v):
+            raise ValueError(f"{self.name}: {len(x)} inputs but {len(v)} directions")
+        if not math.isfinite(sum(x) + sum(v)):
+            raise ValueError(f"{self.name}: inputs {list(x)} or directions {list(v)} are not finite")
+        ratio = 0.0
+        for xi, vi in zip(x, v):
+            r = abs(vi) / max(abs(xi), COMPLEX_STEP_FLOOR)
+            if r > ratio:
+                ratio = r
+        if ratio == 0.0:
+            return 0.0 if self.scalars is not None else np.zeros(self.plant.n_e)
+        h = COMPLEX_STEP / ratio                    # |h v_j| <= 1e-20 max(|x_j|, floor) for every input j
+        z = [complex(xi, h * vi) for xi, vi in zip(x, v)]
+        n = self.plant.n
+        if self.scalars is not None:
+            u = self.u_scalar(z[0], z[1], z[2], z[3:] if self.tracking else None)
+            return u.imag / h
+        m = self.plant.n_m
+        jet = Jet(*np.reshape(np.array(z[n:]), (4, m))) if self.tracking else None
+        return np.imag(self.u_matrix(np.array(z[:n]), jet)) / h
 
     def H_d(self, eta: np.ndarray, jet: Jet | None = None):
         """Desired Hamiltonian; written independently of u, so grad H_d can check the matching."""

@@ -13,6 +13,7 @@ Every function accepts complex arrays, so derivatives can be checked by the comp
 """
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 
@@ -182,6 +183,20 @@ class EMPlant:
         """df/deta = F hess H(eta) (F and g constant)."""
         return self.F() @ self.hess_H(eta)
 
+    def time_derivatives(self, eta: np.ndarray, u, u_dot=0.0) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """(eta', eta'', H', H'') along the motion at state eta with input u and input rate u_dot:
+
+            eta'  = f(eta, u) = F grad H + g u                      (eq. open-loop elecmech)
+            eta'' = F hess H(eta) eta' + g u_dot                     (F, g constant)
+            H'    = grad H . eta' = -grad H^T R grad H + y^T u,  y = g^T grad H   (power balance)
+            H''   = eta'^T hess H eta' + grad H . eta''
+        """
+        u, u_dot = np.atleast_1d(u), np.atleast_1d(u_dot)
+        gH, hH = self.grad_H(eta), self.hess_H(eta)
+        d1 = self.f(eta, u)
+        d2 = self.F() @ (hH @ d1) + self.g() @ u_dot
+        return d1, d2, float(gH @ d1), float(d1 @ hH @ d1 + gH @ d2)
+
     # ---- feasible references (Definition 1) --------------------------------------------------
     def feasible_state(self, jet: Jet) -> tuple[np.ndarray, np.ndarray]:
         """(eta*, x_e*') of a reference jet, from the mechanical equations (Definition 1).
@@ -283,7 +298,14 @@ class OneDOFPlant(EMPlant):
         whose real root is x_e* = s sqrt(2 F* / g), g = -Psi'(q*), s = x_e_sign, when F* / g > 0.
         Differentiating x_e*^2 = 2 F* / g in time: x_e*' = (F*' g - F* g') / (x_e* g^2).
         """
-        if not (math.isfinite(q) and self.domain_margin((q, 0.0, 0.0)) > 0):
+        # q and the jet may be complex (complex-step derivatives, Controller.u_derivative): math's
+        # functions and comparisons raise TypeError for them, and only then the complex forms run, so
+        # the real path costs what it did.
+        try:
+            finite = math.isfinite(q)
+        except TypeError:
+            finite = math.isfinite(q.real)
+        if not (finite and self.domain_margin((q, 0.0, 0.0)) > 0):
             self.check_state(np.array([q, 0.0, 0.0]))                   # raises with the reason
         m, R_m = self.m, self.__dict__.get("_R_m_scalar")
         if R_m is None:                                     # plant matrices are fixed after construction
@@ -293,10 +315,17 @@ class OneDOFPlant(EMPlant):
         g = -self.dpsi(q)
         g_dot = -self.d2psi(q) * qd
         ratio = 2.0 * force / g
-        if not ratio > 0:
+        try:
+            feasible = ratio > 0
+        except TypeError:
+            feasible = ratio.real > 0
+        if not feasible:
             raise ValueError(
                 f"{self.name}: infeasible reference at q* = {q:.6g}: no real x_e* solves "
                 f"-1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) = {force:.6g} "
                 f"(needs (m q*'' + R_m q*' + V'(q*)) / (-Psi'(q*)) > 0)")
-        x_e = self.x_e_sign * math.sqrt(ratio)
+        try:
+            x_e = self.x_e_sign * math.sqrt(ratio)
+        except TypeError:
+            x_e = self.x_e_sign * cmath.sqrt(ratio)
         return q, m * qd, x_e, (force_dot * g - force * g_dot) / (x_e * g * g)

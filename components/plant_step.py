@@ -1,34 +1,46 @@
-"""The open-loop plant over one communication step with a held input: what a plant FMU's doStep computes.
+"""The open-loop plant over one communication step with a polynomial input: what a plant FMU's doStep computes.
 
-Between two communication points t_k and t_k + h a co-simulation master holds the input constant, so the
-plant integrates eq. (open-loop elecmech), eta' = f(eta, u_k), over [t_k, t_k + h] from its current state.
+Between two communication points t_k and t_k + h a co-simulation master either holds the input
+constant or, through fmi2SetRealInputDerivatives, hands a polynomial
+    u(t_k + tau) = u + u' tau + u'' tau^2 / 2,      0 <= tau <= h,
+and the plant integrates eq. (open-loop elecmech), eta' = f(eta, u(t)), over the step from its
+current state. (The held input is the polynomial with u' = u'' = 0.)
 
-The MEMS switch is extremely stiff: its electrical time constant 1/alpha = r_e c1 (q + c0) is ~1e-10 s,
-its mechanics ~1e-4 s. Two things make a communication step both cheap and accurate:
+The MEMS switch is extremely stiff: its electrical time constant 1/alpha = r_e c1 (q + c0) is ~1e-10 s
+near the rest position and ~2e-7 s at the tracking scenario's q ~ 0.06 m; its mechanics ~1e-4 s.
+Two things make a communication step both cheap and accurate:
 
 1. The electrical layer. The electrical equation is linear in x_e for fixed q,
-       x_e' = A(q) x_e + G_e u,   A(q) = (J_e - R_e) Psi(q)    (n_e = 1: A = -alpha, alpha > 0),
-   so after an input jump x_e relaxes to the quasi-static charge x_ss = G_e u / alpha within a few
-   1/alpha, while q and p hardly move. When the layer is over long before the step ends
-   (alpha h >= LAYER_DECAY) and far faster than the mechanics (alpha T_m >= LAYER_SEPARATION), it is
-   applied in closed form at the start of the step: delta = x_e - x_ss decays as delta0 exp(-alpha t),
-   and the extra force -1/2 Psi'(q) (x_e^2 - x_ss^2) of the p-row gives the momentum kick
-       dp = F_pq (Psi'(q) / alpha) (x_ss delta0 + delta0^2 / 4),
-   after which x_e = x_ss. Neglected: the motion of q, p during the layer (relative size 1/(alpha T_m)).
+       x_e' = A(q) x_e + G_e u(t),   A(q) = (J_e - R_e) Psi(q)    (n_e = 1: A = -alpha, alpha > 0),
+   so x_e = x_s + delta splits exactly into a part x_s that starts on the slow manifold
+       x_s(0) = (G_e / alpha) (u - u'/alpha + u''/alpha^2) + G_e u alpha' / alpha^3
+   (alpha' = d alpha/dt along the motion) and a layer delta' = -alpha(q(t)) delta that decays from
+   delta_0 = x_e - x_s(0) as delta_0 exp(-alpha tau - alpha' tau^2 / 2). The layer acts on the
+   mechanics only through the extra force -1/2 Psi'(q) (2 x_s delta + delta^2) of the p-row, whose
+   integral over the step is the momentum kick
+       dp = F_pq (Psi'(q) delta_0 / alpha) (x_s (1 - E) + delta_0 (1 - E^2) / 4),  E = exp(-alpha h - ...).
+   So the step integrates the smooth part from (q, p + dp, x_s(0)) and adds delta_0 E to x_e at the
+   end. The layer is applied when it is stiff for the step (alpha h >= LAYER_MIN_DECAY) and well
+   separated from the mechanics (alpha T_m >= LAYER_SEPARATION), and when the terms it neglects (of
+   relative size 1/(alpha T_m): the motion of q, p during the layer) are below LAYER_TOL times the
+   step's error tolerance. Derivation: docs/derivations.md, "Plant step".
 2. The smooth remainder is integrated by RODAS4 (Hairer & Wanner, Solving ODEs II, Sec. IV.7: a
    stiffly accurate, L-stable Rosenbrock method of order 4 with an embedded order-3 estimate) using the
-   analytic Jacobian F hess H (eq. open-loop elecmech), with error control on states scaled by
-   `nominal_scale`: a substep is accepted when the RMS of err_i / (rtol (1 + |xi_i|)) is <= 1.
+   analytic Jacobian F hess H (eq. open-loop elecmech) and, for the time-varying input, the stage
+   times alpha_i and the coefficients gamma_i of the f_t = g u'(t) term; error control on states scaled
+   by `nominal_scale`: a substep is accepted when the RMS of err_i / (rtol (1 + |xi_i|)) is <= 1.
    The proposed substep size carries over to the next communication step (`PlantStepper.h_next`).
 
-Without (1) the layer would be resolved by the error control: correct, but ~10-30 substeps per step.
+Without (1) the layer would be resolved by the error control: correct, but ~10-30 substeps per step
+(each input jump of a held input starts a new layer).
 
 The fast path (`_ScalarModel`) evaluates eq. (open-loop elecmech) with scalar arithmetic for a
 OneDOFPlant (n_m = n_e = 1, constant mass), from the plant's own scalar V', V'', Psi, Psi', Psi'' and
 its constant F and g: the same equations as `EMPlant.f` and `EMPlant.jacobian`, which the tests pin
 it to. Any other plant with three states uses `EMPlant.f` and `EMPlant.jacobian` directly (slower).
 
-`simulate_zoh` is the tight-tolerance reference for the same problem (scipy's Radau, step by step).
+`simulate_polynomial` (and `simulate_zoh`) is the tight-tolerance reference for the same problem
+(scipy's Radau, step by step).
 """
 from __future__ import annotations
 
@@ -40,8 +52,10 @@ import numpy as np
 from .ph_plant import DomainError, EMPlant, OneDOFPlant
 
 DEFAULT_RTOL = 1e-8
-LAYER_DECAY = 40.0          # alpha h above which exp(-alpha h) < 5e-18: the layer ends inside the step
-LAYER_SEPARATION = 1e3      # alpha T_m above which the layer is instantaneous for the mechanics
+LAYER_MIN_DECAY = 1.0       # alpha h from which the layer is taken in closed form (below, RODAS4 resolves it)
+LAYER_SEPARATION = 100.0    # alpha T_m from which the layer counts as fast for the mechanics
+LAYER_TOL = 0.1             # the terms the layer neglects must stay below this fraction of the error tolerance
+LAYER_GONE = 50.0           # alpha h above which exp(-alpha h) < 2e-22: nothing of the layer is left
 MAX_SUBSTEPS = 100_000
 
 
@@ -70,6 +84,12 @@ _C = _lower([-5.6688, -2.430093356833875, -0.2063599157091915, -0.10735290581513
              16.31930543123136, -6.058818238834054], 6)
 # The method is stiffly accurate: y_new = Y_6 + K_6 with Y_6 = y + sum_j a_6j K_j.
 _ERROR_ORDER = 4.0          # the embedded estimate is O(h^4)
+# Non-autonomous right-hand side (rodas.f, C2..C4 and D1..D4): stage i evaluates f at t + alpha_i h and
+# adds gamma_i h f_t(t, y) to its right-hand side. alpha_i = sum_j alpha_ij and gamma_i = sum_j gamma_ij
+# of the untransformed method, i.e. the row sums of a Gamma and Gamma with Gamma = (I/gamma - c)^-1
+# (tests/test_plant_step.py derives them so from _A and _C); stages 5 and 6 sit at t + h with gamma_i = 0.
+_STAGE_TIME = (0.0, 0.386, 0.21, 0.63, 1.0, 1.0)
+_STAGE_GAMMA = (0.25, -0.1043, 0.1035, -0.0362, 0.0, 0.0)
 
 
 def nominal_scale(plant: EMPlant) -> np.ndarray:
@@ -97,6 +117,15 @@ def mechanical_time(plant: EMPlant) -> float:
     s = nominal_scale(plant)
     m = 1.0 / float(plant.M_inv(np.zeros(1))[0, 0])
     return m * s[0] / s[1]
+
+
+def _moments(beta: float, h: float) -> tuple[float, float, float, float]:
+    """int_0^h tau^k exp(-beta tau) d tau for k = 0..3 (beta h >= 1: no cancellation)."""
+    bh = beta * h
+    E = math.exp(-bh) if bh < LAYER_GONE else 0.0
+    ib = 1.0 / beta
+    return ((1.0 - E) * ib, (1.0 - E * (1.0 + bh)) * ib ** 2, (2.0 - E * (2.0 + bh * (2.0 + bh))) * ib ** 3,
+            (6.0 - E * (6.0 + bh * (6.0 + bh * (3.0 + bh)))) * ib ** 4)
 
 
 class _ScalarModel:
@@ -144,6 +173,21 @@ class _ScalarModel:
                self.F_pp * self.m_inv, self.F_pq * h_qx, self.F_xx * h_qx, self.F_xx * Psi)
         return f, jac
 
+    def time_derivatives(self, q: float, p: float, x: float, u: float, u_dot: float):
+        """`EMPlant.time_derivatives` in scalars: ((q', p', x_e'), (q'', p'', x_e''), H', H'').
+
+        With grad H = (V' + 1/2 x_e^2 Psi', p/m, Psi x_e) and w = hess H eta':
+        eta' = F grad H + g u, eta'' = F w + g u_dot, H' = grad H . eta', H'' = eta' . w + grad H . eta''."""
+        Psi, dPsi = self.Psi(q), self.dPsi(q)
+        gq, gp, gx = self.dV(q) + 0.5 * x * x * dPsi, self.m_inv * p, Psi * x
+        f0, f1, f2 = self.F_qp * gp, self.F_pq * gq + self.F_pp * gp, self.F_xx * gx + self.g_x * u
+        h_qx = x * dPsi
+        w0 = (self.d2V(q) + 0.5 * x * x * self.d2Psi(q)) * f0 + h_qx * f2
+        w1, w2 = self.m_inv * f1, h_qx * f0 + Psi * f2
+        e0, e1, e2 = self.F_qp * w1, self.F_pq * w0 + self.F_pp * w1, self.F_xx * w2 + self.g_x * u_dot
+        return ((f0, f1, f2), (e0, e1, e2), gq * f0 + gp * f1 + gx * f2,
+                f0 * w0 + f1 * w1 + f2 * w2 + gq * e0 + gp * e1 + gx * e2)
+
 
 class _ArrayModel(_ScalarModel):
     """Any three-state plant: `EMPlant.f` and `EMPlant.jacobian` (dense) behind the scalar interface."""
@@ -156,12 +200,25 @@ class _ArrayModel(_ScalarModel):
         qa = np.array([q])
         return float(self.plant.Psi(qa)[0, 0]), float(self.plant.dPsi(qa)[0, 0, 0])
 
+    def d2Psi(self, q):
+        return float(self.plant.d2Psi(np.array([q]))[0, 0, 0, 0])
+
+    def dV(self, q):
+        return float(self.plant.grad_V(np.array([q]))[0])
+
+    def d2V(self, q):
+        return float(self.plant.hess_V(np.array([q]))[0, 0])
+
     def f(self, q, p, x, u):
         return tuple(float(v) for v in self.plant.f(np.array([q, p, x]), np.array([u])))
 
     def f_jac(self, q, p, x, u):
         eta = np.array([q, p, x])
         return self.f(q, p, x, u), np.asarray(self.plant.jacobian(eta), dtype=float)
+
+    def time_derivatives(self, q, p, x, u, u_dot):
+        d1, d2, H1, H2 = self.plant.time_derivatives(np.array([q, p, x]), u, u_dot)
+        return tuple(float(v) for v in d1), tuple(float(v) for v in d2), H1, H2
 
 
 class PlantStepper:
@@ -199,43 +256,108 @@ class PlantStepper:
             self.plant.check_state(eta)
             raise DomainError(f"{self.plant.name}: state {eta} is outside the domain")
 
+    # ---- output derivatives ----------------------------------------------------------------------
+    def time_derivatives(self, q: float, p: float, x: float, u: float, u_dot: float = 0.0):
+        """((q', p', x_e'), (q'', p'', x_e''), H', H'') at state (q, p, x_e) with input u and input rate
+        u_dot: the exact derivatives of eq. (open-loop elecmech) (`EMPlant.time_derivatives`)."""
+        return self.model.time_derivatives(q, p, x, u, u_dot)
+
     # ---- the electrical layer ------------------------------------------------------------------
-    def layer(self, q: float, p: float, x: float, u: float, h: float) -> tuple[float, float, bool]:
-        """(p, x_e) after the electrical layer, if it is applicable for a step of size h (see module doc)."""
+    def layer(self, q: float, p: float, x: float, u: float, h: float, du: float = 0.0,
+              d2u: float = 0.0) -> tuple[float, float, float, float, bool]:
+        """(q_0, p_0, x_s(0), delta(h), applied): the electrical layer of a step of size h taken in closed
+        form (module doc; docs/derivations.md, "Plant step"), or (q, p, x, 0, False) when it does not apply.
+
+        The smooth part of the step starts from (q_0, p_0, x_s(0)); delta(h) is what is left of the layer
+        at the end of the step, to be added to x_e there."""
         model = self.model
         Psi, dPsi = model.psi(q)
-        alpha = -model.F_xx * Psi
-        if not (alpha * h >= LAYER_DECAY and alpha * self.t_mech >= LAYER_SEPARATION):
-            return p, x, False
-        x_ss = model.g_x * u / alpha
-        d0 = x - x_ss
-        return p + model.F_pq * (dPsi / alpha) * (x_ss * d0 + 0.25 * d0 * d0), x_ss, True
+        alpha = -model.F_xx * Psi                               # n_e = 1: A(q) = (J_e - R_e) Psi(q) = -alpha
+        ah = alpha * h
+        if not (ah >= LAYER_MIN_DECAY and alpha * self.t_mech >= LAYER_SEPARATION):
+            return q, p, x, 0.0, False
+        F_pq, F_xx, g, ia = model.F_pq, model.F_xx, model.g_x, 1.0 / alpha
+        d2Psi, J_qp, J_pp = model.d2Psi(q), model.F_qp * model.m_inv, model.F_pp * model.m_inv
+        # the slow manifold x_s of the electrical row and its rate, to first order in 1/alpha
+        v = J_qp * p                                            # q'
+        alpha1 = -F_xx * dPsi * v                               # alpha' along the motion
+        x_s = g * ia * (u - ia * (du - ia * d2u) + u * alpha1 * ia * ia)
+        x_s1 = g * ia * (du - ia * d2u - u * alpha1 * ia)
+        d0 = x - x_s
+        tol, (sq, sp, sx) = LAYER_TOL * self.rtol, self.scale
+        # relative rates over the layer: r1 (first derivatives of alpha, Psi', x_s along the motion) and
+        # sigma (the mechanics: J_s with x_e on its manifold, k_s = J_pq - J_px J_xq / J_xx)
+        xx = x_s * x_s
+        k_s = F_pq * (model.d2V(q) + 0.5 * xx * d2Psi - xx * dPsi * dPsi / Psi)
+        size = abs(x_s) + abs(d0) or 1.0
+        r1 = (abs(alpha1) * ia + (abs(d2Psi * v / dPsi) if dPsi else 0.0) + abs(x_s1) / size) * ia
+        sigma = max(math.sqrt(abs(k_s * J_qp)), abs(J_pp), 1.0 / self.t_mech) * ia
+        kick = abs(d0) * (abs(dPsi * x_s) + abs(d0 * dPsi) * 0.25) * ia   # size of the zeroth-order kick
+        if ah >= LAYER_GONE and kick * (r1 + sigma) <= tol * (sp + abs(p)) and \
+                abs(J_qp) * kick * ia <= tol * (sq + abs(q)):
+            # the layer ends inside the step and what the first-order terms and the delay add is below a
+            # tenth of the tolerance: the zeroth-order kick suffices (the common case: large alpha h)
+            return q, p + F_pq * dPsi * d0 * (x_s + 0.25 * d0) * ia, x_s, 0.0, True
+        # the layer's extra force on the p-row, G = F_pq Psi'(q) (x_s delta + delta^2 / 2) with
+        # delta = d0 exp(-alpha tau - alpha' tau^2 / 2), to first order along the motion; its moments
+        # M_k = int_0^h tau^k / k! G d tau
+        Phi0, Phi1 = F_pq * dPsi * x_s, F_pq * (d2Psi * v * x_s + dPsi * x_s1)
+        B0, B1 = 0.5 * F_pq * dPsi, 0.5 * F_pq * d2Psi * v
+        J0, J1, J2, J3 = _moments(alpha, h)                     # int_0^h tau^k exp(-alpha tau) d tau
+        L0, L1, L2, L3 = _moments(2.0 * alpha, h)
+        d00 = d0 * d0
+        M0 = d0 * (Phi0 * J0 + Phi1 * J1 - 0.5 * alpha1 * Phi0 * J2) + d00 * (B0 * L0 + B1 * L1 - alpha1 * B0 * L2)
+        M1 = d0 * (Phi0 * J1 + Phi1 * J2 - 0.5 * alpha1 * Phi0 * J3) + d00 * (B0 * L1 + B1 * L2 - alpha1 * B0 * L3)
+        M2 = 0.5 * (d0 * Phi0 * J2 + d00 * B0 * L2)
+        # The smooth part feels the force G as if it all came at tau = 0, so it starts from
+        # (q, p) + sum_k (-J_s)^k e_p M_k (J_s: J_qp, J_pp, k_s): the kick M_0 and the corrections for its delay.
+        dq = -J_qp * M1 + J_qp * J_pp * M2
+        dp = M0 - J_pp * M1 + (k_s * J_qp + J_pp * J_pp) * M2
+        E = math.exp(-ah - 0.5 * alpha1 * h * h) if ah < LAYER_GONE else 0.0
+        # What this neglects, relative to the kick: second order in the rates of the motion over the layer
+        # (r1 squared; r2: second derivatives), a cross term and third order in the mechanical rates
+        # (sigma); for delta(h), the next term alpha'' h^3 / 6 of its exponent.
+        a_q = J_qp * (F_pq * (model.dV(q) + 0.5 * xx * dPsi) + J_pp * p)      # q''
+        alpha2 = -F_xx * (d2Psi * v * v + dPsi * a_q)
+        r2 = (abs(alpha2) * ia + (abs(d2Psi * a_q / dPsi) if dPsi else 0.0) + abs(g * d2u) * ia / size) * ia * ia
+        if kick * (r1 * r1 + r2 + r1 * sigma + sigma ** 3) > tol * (sp + abs(p)) or \
+                abs(J_qp * kick) * ia * (r1 * r1 + r2 + sigma * sigma) > tol * (sq + abs(q)) or \
+                abs(d0) * E * abs(alpha2) * h * h * h / 6.0 > tol * (sx + abs(x_s)):
+            return q, p, x, 0.0, False
+        return q + dq, p + dp, x_s, d0 * E, True
 
     # ---- one communication step ------------------------------------------------------------------
-    def step(self, eta: Sequence[float], u, h: float) -> np.ndarray:
-        """The state after holding input u for h seconds from state eta.
+    def step(self, eta: Sequence[float], u, h: float, du: float = 0.0, d2u: float = 0.0) -> np.ndarray:
+        """The state after h seconds from state eta with the input u(t + tau) = u + du tau + d2u tau^2 / 2
+        (du = d2u = 0: the input held).
 
-        Raises ValueError for a non-finite or non-positive h, a non-finite u or eta; DomainError
+        Raises ValueError for a non-finite or non-positive h, a non-finite u, du, d2u or eta; DomainError
         (with the plant's reason) if the state leaves the domain; StepFailure if the integration fails.
         The stepper's h_next changes only when the step succeeds.
         """
         u = float(np.asarray(u, dtype=float).reshape(-1)[0])
         q, p, x = (float(v) for v in eta)
-        return np.array(self.advance(q, p, x, u, float(h)))
+        return np.array(self.advance(q, p, x, u, float(h), float(du), float(d2u)))
 
-    def advance(self, q: float, p: float, x: float, u: float, h: float) -> tuple[float, float, float]:
-        """`step` on floats: (q, p, x_e) after holding u for h seconds."""
+    def advance(self, q: float, p: float, x: float, u: float, h: float, du: float = 0.0,
+                d2u: float = 0.0) -> tuple[float, float, float]:
+        """`step` on floats: (q, p, x_e) after h seconds with the input u + du tau + d2u tau^2 / 2.
+        (Python floats: numpy scalars work but make the arithmetic about twice as slow.)"""
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"communication step size h = {h} must be finite and > 0")
-        if not math.isfinite(u):
-            raise ValueError(f"input u = {u} is not finite")
+        if not (math.isfinite(u) and math.isfinite(du) and math.isfinite(d2u)):
+            bad = next(f"{n} = {v}" for n, v in (("input u", u), ("input derivative du/dt", du),
+                                                   ("input derivative d2u/dt2", d2u)) if not math.isfinite(v))
+            raise ValueError(f"{bad} is not finite")
         self._check(q, p, x)
-        p, x, self.layer_applied = self.layer(q, p, x, u, h)
-        y, h_next, n_ok, n_rej = self._integrate(q, p, x, u, h)
+        q, p, x, x_left, self.layer_applied = self.layer(q, p, x, u, h, du, d2u)
+        y, h_next, n_ok, n_rej = self._integrate(q, p, x, u, du, d2u, h)
         self.h_next, self.n_substeps, self.n_rejected = h_next, n_ok, n_rej
+        if x_left:
+            y = (y[0], y[1], y[2] + x_left)
         return y
 
-    def _integrate(self, q, p, x, u, h):
+    def _integrate(self, q, p, x, u, du, d2u, h):
         sq, sp, sx = self.scale
         iq, ip, ix = 1.0 / sq, 1.0 / sp, 1.0 / sx
         rtol = self.rtol
@@ -252,7 +374,9 @@ class PlantStepper:
             last = hs >= remaining * (1.0 - 1e-9)
             hh = remaining if last else hs
             try:
-                y_new, err = rodas4(model, y, u, hh, iq, ip, ix, sq, sp, sx)
+                # the input polynomial re-expanded at the substep's start t
+                y_new, err = rodas4(model, y, u + t * (du + 0.5 * t * d2u), du + t * d2u, d2u, hh,
+                                    iq, ip, ix, sq, sp, sx)
                 e0, e1, e2 = err
                 n0 = rtol * (1.0 + max(abs(y[0]), abs(y_new[0])))
                 n1 = rtol * (1.0 + max(abs(y[1]), abs(y_new[1])))
@@ -285,14 +409,16 @@ class PlantStepper:
                 raise StepFailure(f"{plant.name}: more than {self.max_substeps} substeps in a step of {h:.6g} s "
                                   f"(reached t + {t:.6g} s)")
 
-    def _rodas4_dense(self, model, y, u, h, iq, ip, ix, sq, sp, sx):
-        """One RODAS4 step in scaled variables, dense Jacobian: (y_new, error estimate)."""
+    def _rodas4_dense(self, model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx):
+        """One RODAS4 step in scaled variables, dense Jacobian, input u + du tau + d2u tau^2 / 2:
+        (y_new, error estimate)."""
         f0, jac = model.f_jac(y[0] * sq, y[1] * sp, y[2] * sx, u)
         gi = 1.0 / (h * _GAMMA)
         lu = _lu3(gi * np.eye(3) - jac * np.outer([iq, ip, ix], [sq, sp, sx]))
+        ft = h * model.g_x * du * ix                             # h f_t, scaled: only the x_e-row depends on t
         Ks = []
         y0, y1, y2 = y
-        r = (f0[0] * iq, f0[1] * ip, f0[2] * ix)
+        r = (f0[0] * iq, f0[1] * ip, f0[2] * ix + _STAGE_GAMMA[0] * ft)
         hi = 1.0 / h
         for i in range(6):
             if i:
@@ -304,8 +430,9 @@ class PlantStepper:
                     c0 += c_ * k0
                     c1 += c_ * k1
                     c2 += c_ * k2
-                fi = model.f(Y0 * sq, Y1 * sp, Y2 * sx, u)
-                r = (fi[0] * iq + hi * c0, fi[1] * ip + hi * c1, fi[2] * ix + hi * c2)
+                tau = _STAGE_TIME[i] * h
+                fi = model.f(Y0 * sq, Y1 * sp, Y2 * sx, u + tau * (du + 0.5 * tau * d2u))
+                r = (fi[0] * iq + hi * c0, fi[1] * ip + hi * c1, fi[2] * ix + hi * c2 + _STAGE_GAMMA[i] * ft)
             Ks.append(_solve_dense(lu, r))
         K6 = Ks[5]
         return (Y0 + K6[0], Y1 + K6[1], Y2 + K6[2]), K6
@@ -314,13 +441,15 @@ class PlantStepper:
 # RODAS4's coefficients by name, for the written-out stages of `_rodas4_structured`
 (_a21,), (_a31, _a32), (_a41, _a42, _a43), (_a51, _a52, _a53, _a54), (_a61, _a62, _a63, _a64, _a65) = _A[1:]
 (_c21,), (_c31, _c32), (_c41, _c42, _c43), (_c51, _c52, _c53, _c54), (_c61, _c62, _c63, _c64, _c65) = _C[1:]
+_, _t2, _t3, _t4, _, _ = _STAGE_TIME
+_d1, _d2, _d3, _d4, _, _ = _STAGE_GAMMA
 
 
-def _rodas4_structured(model, y, u, h, iq, ip, ix, sq, sp, sx):
-    """One RODAS4 step in scaled variables for J = [[0, a, 0], [b, c, d], [e, 0, k]] (a OneDOFPlant):
-    (y_new, error estimate). The same method as `PlantStepper._rodas4_dense`, with the six stages
-    written out (a loop over the coefficient table would cost more than the arithmetic) and the
-    linear solves done by elimination."""
+def _rodas4_structured(model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx):
+    """One RODAS4 step in scaled variables for J = [[0, a, 0], [b, c, d], [e, 0, k]] (a OneDOFPlant),
+    input u + du tau + d2u tau^2 / 2: (y_new, error estimate). The same method as
+    `PlantStepper._rodas4_dense`, with the six stages written out (a loop over the coefficient table
+    would cost more than the arithmetic) and the linear solves done by elimination."""
     f0, (J_qp, J_pq, J_pp, J_px, J_xq, J_xx) = model.f_jac(y[0] * sq, y[1] * sp, y[2] * sx, u)
     g = 1.0 / (h * _GAMMA)
     # G = I/(h gamma) - J (scaled): eliminate K_q and K_x into the K_p equation
@@ -330,37 +459,43 @@ def _rodas4_structured(model, y, u, h, iq, ip, ix, sq, sp, sx):
 
     f = model.f
     hi = 1.0 / h
+    ft = h * model.g_x * du * ix                                 # h f_t, scaled: only the x_e-row depends on t
     y0, y1, y2 = y
     # stage 1
-    p0, p1, p2 = _solve_structured(lu, (f0[0] * iq, f0[1] * ip, f0[2] * ix))
+    p0, p1, p2 = _solve_structured(lu, (f0[0] * iq, f0[1] * ip, f0[2] * ix + _d1 * ft))
     # stage 2
-    fi = f((y0 + _a21 * p0) * sq, (y1 + _a21 * p1) * sp, (y2 + _a21 * p2) * sx, u)
+    tau = _t2 * h
+    fi = f((y0 + _a21 * p0) * sq, (y1 + _a21 * p1) * sp, (y2 + _a21 * p2) * sx, u + tau * (du + 0.5 * tau * d2u))
     q0, q1, q2 = _solve_structured(lu, (fi[0] * iq + hi * _c21 * p0, fi[1] * ip + hi * _c21 * p1,
-                                        fi[2] * ix + hi * _c21 * p2))
+                                        fi[2] * ix + hi * _c21 * p2 + _d2 * ft))
     # stage 3
+    tau = _t3 * h
     fi = f((y0 + _a31 * p0 + _a32 * q0) * sq, (y1 + _a31 * p1 + _a32 * q1) * sp,
-           (y2 + _a31 * p2 + _a32 * q2) * sx, u)
+           (y2 + _a31 * p2 + _a32 * q2) * sx, u + tau * (du + 0.5 * tau * d2u))
     r0, r1, r2 = _solve_structured(lu, (fi[0] * iq + hi * (_c31 * p0 + _c32 * q0),
                                         fi[1] * ip + hi * (_c31 * p1 + _c32 * q1),
-                                        fi[2] * ix + hi * (_c31 * p2 + _c32 * q2)))
+                                        fi[2] * ix + hi * (_c31 * p2 + _c32 * q2) + _d3 * ft))
     # stage 4
+    tau = _t4 * h
     fi = f((y0 + _a41 * p0 + _a42 * q0 + _a43 * r0) * sq, (y1 + _a41 * p1 + _a42 * q1 + _a43 * r1) * sp,
-           (y2 + _a41 * p2 + _a42 * q2 + _a43 * r2) * sx, u)
+           (y2 + _a41 * p2 + _a42 * q2 + _a43 * r2) * sx, u + tau * (du + 0.5 * tau * d2u))
     s0, s1, s2 = _solve_structured(lu, (fi[0] * iq + hi * (_c41 * p0 + _c42 * q0 + _c43 * r0),
                                         fi[1] * ip + hi * (_c41 * p1 + _c42 * q1 + _c43 * r1),
-                                        fi[2] * ix + hi * (_c41 * p2 + _c42 * q2 + _c43 * r2)))
-    # stage 5
+                                        fi[2] * ix + hi * (_c41 * p2 + _c42 * q2 + _c43 * r2) + _d4 * ft))
+    # stage 5 (at t + h, gamma_5 = 0)
+    u1 = u + h * (du + 0.5 * h * d2u)
     fi = f((y0 + _a51 * p0 + _a52 * q0 + _a53 * r0 + _a54 * s0) * sq,
            (y1 + _a51 * p1 + _a52 * q1 + _a53 * r1 + _a54 * s1) * sp,
-           (y2 + _a51 * p2 + _a52 * q2 + _a53 * r2 + _a54 * s2) * sx, u)
+           (y2 + _a51 * p2 + _a52 * q2 + _a53 * r2 + _a54 * s2) * sx, u1)
     t0, t1, t2 = _solve_structured(lu, (fi[0] * iq + hi * (_c51 * p0 + _c52 * q0 + _c53 * r0 + _c54 * s0),
                                         fi[1] * ip + hi * (_c51 * p1 + _c52 * q1 + _c53 * r1 + _c54 * s1),
                                         fi[2] * ix + hi * (_c51 * p2 + _c52 * q2 + _c53 * r2 + _c54 * s2)))
-    # stage 6: Y_6 = y + sum_j a_6j K_j; y_new = Y_6 + K_6 (stiffly accurate), K_6 is the error estimate
+    # stage 6 (at t + h, gamma_6 = 0): Y_6 = y + sum_j a_6j K_j; y_new = Y_6 + K_6 (stiffly accurate),
+    # K_6 is the error estimate
     Y0 = y0 + _a61 * p0 + _a62 * q0 + _a63 * r0 + _a64 * s0 + _a65 * t0
     Y1 = y1 + _a61 * p1 + _a62 * q1 + _a63 * r1 + _a64 * s1 + _a65 * t1
     Y2 = y2 + _a61 * p2 + _a62 * q2 + _a63 * r2 + _a64 * s2 + _a65 * t2
-    fi = f(Y0 * sq, Y1 * sp, Y2 * sx, u)
+    fi = f(Y0 * sq, Y1 * sp, Y2 * sx, u1)
     K6 = _solve_structured(lu, (fi[0] * iq + hi * (_c61 * p0 + _c62 * q0 + _c63 * r0 + _c64 * s0 + _c65 * t0),
                                   fi[1] * ip + hi * (_c61 * p1 + _c62 * q1 + _c63 * r1 + _c64 * s1 + _c65 * t1),
                                   fi[2] * ix + hi * (_c61 * p2 + _c62 * q2 + _c63 * r2 + _c64 * s2 + _c65 * t2)))
@@ -386,24 +521,31 @@ def _solve_dense(lu, r):
     return tuple(scipy.linalg.lu_solve(lu, np.asarray(r, dtype=float)))
 
 
-def simulate_zoh(plant: EMPlant, eta0, h: float, inputs: Sequence[float], rtol: float = 1e-11) -> np.ndarray:
-    """Reference solution: the states at t = k h (k = 0..len(inputs)) for input inputs[k] held on
-    [k h, (k+1) h], each step integrated by scipy's Radau with the exact Jacobian on states scaled by
-    `nominal_scale`, to relative and absolute (scaled) tolerance rtol. Raises DomainError on leaving
-    the domain."""
+def simulate_polynomial(plant: EMPlant, eta0, h: float, inputs, rtol: float = 1e-11) -> np.ndarray:
+    """Reference solution: the states at t = k h (k = 0..len(inputs)) for the input
+    u(k h + tau) = u_k + u'_k tau + u''_k tau^2 / 2 on [k h, (k+1) h], where inputs[k] is u_k or a tuple
+    (u_k[, u'_k[, u''_k]]); each step integrated by scipy's Radau with the exact Jacobian on states
+    scaled by `nominal_scale`, to relative and absolute (scaled) tolerance rtol. Raises DomainError
+    on leaving the domain."""
     from scipy.integrate import solve_ivp
 
     s = nominal_scale(plant)
     eta = np.asarray(eta0, dtype=float)
     plant.check_state(eta)
     out = [eta]
-    for k, u in enumerate(inputs):
-        ua = np.array([float(u)])
-        sol = solve_ivp(lambda t, xi: plant.f(xi * s, ua) / s, (0.0, h), eta / s, method="Radau",
-                        rtol=rtol, atol=rtol, jac=lambda t, xi: plant.jacobian(xi * s) * s[None, :] / s[:, None])
+    for k, row in enumerate(inputs):
+        u0, u1, u2 = (tuple(float(v) for v in np.atleast_1d(row)) + (0.0, 0.0))[:3]
+        sol = solve_ivp(lambda t, xi: plant.f(xi * s, np.array([u0 + t * (u1 + 0.5 * t * u2)])) / s, (0.0, h),
+                        eta / s, method="Radau", rtol=rtol, atol=rtol,
+                        jac=lambda t, xi: plant.jacobian(xi * s) * s[None, :] / s[:, None])
         if not sol.success:
             raise StepFailure(f"reference integration failed in step {k}: {sol.message}")
         eta = sol.y[:, -1] * s
         plant.check_state(eta)
         out.append(eta)
     return np.array(out)
+
+
+def simulate_zoh(plant: EMPlant, eta0, h: float, inputs: Sequence[float], rtol: float = 1e-11) -> np.ndarray:
+    """`simulate_polynomial` with each input inputs[k] held on [k h, (k+1) h]."""
+    return simulate_polynomial(plant, eta0, h, [float(u) for u in inputs], rtol)

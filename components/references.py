@@ -1,7 +1,9 @@
 """Reference jets (q*, q*', q*'', q*''') for the tracking and regulation controllers.
 
 A jet is turned into a feasible trajectory eta*(t) and x_e*'(t) by the plant
-(`EMPlant.feasible_state`, Definition 1).
+(`EMPlant.feasible_state`, Definition 1). `Reference.derivatives` gives q* and its derivatives of any
+order, analytically: what the Reference FMU answers to fmi2GetRealOutputDerivatives (its output
+q_star_dddot of order k is q*^(3+k)).
 """
 from __future__ import annotations
 
@@ -32,6 +34,16 @@ class Reference:
         """The jet at time t as arrays of shape (1,)."""
         return Jet(*(np.array([v]) for v in self.values(t)))
 
+    def derivatives(self, t: float, order: int) -> tuple[float, ...]:
+        """(q*, q*', ..., q*^(order)) at time t, as numbers; `values(t)` is its first four entries."""
+        raise NotImplementedError
+
+
+def _check_order(order: int) -> int:
+    if isinstance(order, bool) or not (isinstance(order, (int, np.integer)) and order >= 0):
+        raise ValueError(f"derivative order {order!r} must be an integer >= 0")
+    return int(order)
+
 
 class Constant(Reference):
     """Constant set-point q*(t) = q_d."""
@@ -43,6 +55,9 @@ class Constant(Reference):
 
     def values(self, t: float) -> tuple[float, float, float, float]:
         return self.q_d, 0.0, 0.0, 0.0
+
+    def derivatives(self, t: float, order: int) -> tuple[float, ...]:
+        return (self.q_d,) + (0.0,) * _check_order(order)
 
 
 class Sinusoid(Reference):
@@ -60,6 +75,14 @@ class Sinusoid(Reference):
         a, w, th = self.amplitude, self.omega, self.omega * t + self.phase
         s, c = math.sin(th), math.cos(th)
         return self.offset + a * s, a * w * c, -a * w ** 2 * s, -a * w ** 3 * c
+
+    def derivatives(self, t: float, order: int) -> tuple[float, ...]:
+        """q*^(k) = amplitude omega^k sin(omega t + phase + k pi/2), plus offset for k = 0."""
+        a, w, th = self.amplitude, self.omega, self.omega * t + self.phase
+        s, c = math.sin(th), math.cos(th)
+        cycle = (s, c, -s, -c)                               # sin(th + k pi/2) for k mod 4
+        return tuple((self.offset if k == 0 else 0.0) + a * w ** k * cycle[k % 4]
+                     for k in range(_check_order(order) + 1))
 
 
 class SmoothStep(Reference):
@@ -85,6 +108,25 @@ class SmoothStep(Reference):
         s3 = 840 * tau - 5040 * tau**2 + 8400 * tau**3 - 4200 * tau**4
         d, T = self.q_to - self.q_from, self.duration
         return self.q_from + d * s, d * s1 / T, d * s2 / T**2, d * s3 / T**3
+
+    S = {4: 35.0, 5: -84.0, 6: 70.0, 7: -20.0}                 # s(tau) = sum_n S[n] tau^n
+
+    def derivatives(self, t: float, order: int) -> tuple[float, ...]:
+        """q*^(k) = (q_to - q_from) s^(k)(tau) / duration^k with tau = (t - t_start) / duration.
+
+        Derivatives of order 4 and higher jump at tau = 0 and tau = 1 (s''''(0) = 840); they are taken
+        from the right, the side of a communication step that starts at t: the polynomial's on
+        0 <= tau < 1, zero elsewhere. Orders 0-3 are continuous and equal `values`."""
+        order = _check_order(order)
+        tau = (t - self.t_start) / self.duration
+        if not 0.0 <= tau < 1.0:                                # constant before and after the transition
+            return (self.q_to if tau >= 1.0 else self.q_from,) + (0.0,) * order
+        d, T = self.q_to - self.q_from, self.duration
+        out = []
+        for k in range(order + 1):
+            sk = sum(c * math.perm(n, k) * tau ** (n - k) for n, c in self.S.items() if n >= k)
+            out.append((self.q_from if k == 0 else 0.0) + d * sk / T ** k)
+        return tuple(out)
 
 
 KINDS = {"constant": Constant, "sinusoid": Sinusoid, "smooth_step": SmoothStep}

@@ -1,7 +1,7 @@
 """Command line interface `emcosim`: run, export and inspect SSP scenarios.
 
     emcosim run SCENARIO [--stop-time T] [--step-size H] [--set component.variable=value ...]
-                         [--output results.csv] [--plot results.png]
+                         [--output results.csv] [--plot results.png] [--record a.x,b.y]
     emcosim export SCENARIO -o loop.fmu
     emcosim info [SCENARIO ...]
     emcosim reproduce [--out DIR]
@@ -9,16 +9,20 @@
 
 SCENARIO is a scenario name (a folder of scenarios/), a folder holding SystemStructure.ssd, an
 .ssd file or an .ssp archive. Errors are reported on one line; the exit status is then 1 (2 for
-a usage error).
+a usage error, 128 + the signal's number for a run stopped by SIGINT (130) or SIGTERM (143)).
+Results are written safely: see emcosim.engine.results (a failed or interrupted run leaves
+NAME.partial.csv or NAME.partial/, never a half-written NAME.csv).
 """
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
+import re
 import sys
 from pathlib import Path
 
-from .engine.errors import ScenarioError, SimulationError
+from .engine.errors import Interrupted, ScenarioError, SimulationError
 
 
 def scenario_dirs() -> list[Path]:
@@ -27,22 +31,47 @@ def scenario_dirs() -> list[Path]:
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
+NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--radius")
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def _join_negative_numbers(argv: list[str]) -> list[str]:
+    """`--step-size -1e-5` as `--step-size=-1e-5`: argparse takes '-1e-5' for an option (it only
+    recognises negative numbers without an exponent), so the value would be missing."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1] in NUMBER_OPTIONS and NEGATIVE_NUMBER.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_numbers(sys.argv[1:] if argv is None else list(argv)))
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
+    from .engine import stopping, tempdirs
+
+    tempdirs.clean_stale()                         # unpacked FMUs of killed runs
     try:
-        return args.func(args)
+        # the sweep's client runs no FMU: a signal may stop it at once; elsewhere between two steps
+        with stopping.on_signals(graceful=args.command != "sweep"):
+            return args.func(args)
+    except Interrupted as exc:                     # stopped between two communication points
+        print(f"emcosim: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 128 + exc.signal
     except ScenarioError as exc:                   # includes SimulationError
         print(f"emcosim: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     except BrokenPipeError:                        # e.g. `emcosim info | head`
         return 0
-    except KeyboardInterrupt:
-        print("emcosim: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:               # a second Ctrl-C, or a signal to the sweep
+        signum = getattr(exc, "signal", 2)
+        print(f"emcosim: interrupted by {'SIGTERM' if signum == 15 else 'SIGINT'}", file=sys.stderr)
+        return 128 + signum
     except Exception as exc:                       # anything unforeseen: still one line
         print(f"emcosim: error: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
@@ -50,17 +79,27 @@ def main(argv: list[str] | None = None) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="emcosim", description="Co-simulation of SSP scenarios of FMI 2.0 FMUs.")
+    p.add_argument("--version", action="version", version=f"emcosim {_version()}")
     sub = p.add_subparsers(dest="command")
+    ssp = _archive_options()
 
-    run = sub.add_parser("run", help="run a scenario and record its variables to CSV")
+    run = sub.add_parser("run", help="run a scenario and record its variables to CSV", parents=[ssp])
     run.add_argument("scenario")
     run.add_argument("--stop-time", type=float, help="stop time [s] (default: the scenario's)")
     run.add_argument("--step-size", type=float, help="communication step [s] (default: the scenario's)")
     run.add_argument("--set", action="append", default=[], metavar="COMPONENT.VARIABLE=VALUE",
                      help="override a parameter or input start value (repeatable)")
-    run.add_argument("--output", "-o", help="results CSV (default: SCENARIO_NAME.csv)")
-    run.add_argument("--plot", help="also plot the recorded variables to this image file")
-    run.add_argument("--record", help="comma-separated full variable names to record (default: every connector)")
+    run.add_argument("--output", "-o", help="results CSV (default: SCENARIO_NAME.csv); written as the run goes "
+                                           "and renamed into place at the end (a failed run: NAME.partial.csv)")
+    run.add_argument("--plot", metavar="FILE.png",
+                     help="also draw the run to this image file (.png, .svg, .pdf): for the paper's scenarios "
+                          "q against q*, the error q - q*, u, x_e and H in physical units; for any other "
+                          "scenario one axis per recorded variable, in its unit")
+    run.add_argument("--record", metavar="COMPONENT.VARIABLE,...",
+                     help="comma-separated full variable names to record, e.g. plant.q,controller.u "
+                          "(`emcosim info SCENARIO` lists every variable). Default: every output connector "
+                          "and every unconnected input, so each connected value is recorded once (a "
+                          "connection's two ends carry the same value)")
     run.add_argument("--tolerance", type=float,
                      help="choose the communication steps so that the recorded variables keep this relative error "
                           "over the run (FMU-state rollback, a shadow copy for the error estimate); the step size "
@@ -71,16 +110,18 @@ def _parser() -> argparse.ArgumentParser:
                           "ends of a connection declare)")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
+    run.add_argument("--max-steps", type=float, default=None, metavar="N",
+                     help="confirm a run of more than 1e8 communication steps (refused otherwise)")
     run.set_defaults(func=cmd_run)
 
-    export = sub.add_parser("export", help="export a scenario as a closed-loop container FMU")
+    export = sub.add_parser("export", help="export a scenario as a closed-loop container FMU", parents=[ssp])
     export.add_argument("scenario")
     export.add_argument("-o", "--output", required=True, help="the .fmu to write")
     export.add_argument("--step-size", type=float, help="fixed step of the container (default: the scenario's)")
     export.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
     export.set_defaults(func=cmd_export)
 
-    info = sub.add_parser("info", help="list the scenarios and their FMUs with their variables")
+    info = sub.add_parser("info", help="list the scenarios and their FMUs with their variables", parents=[ssp])
     info.add_argument("scenario", nargs="*", help="scenarios to describe (default: all in scenarios/)")
     info.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
     info.set_defaults(func=cmd_info)
@@ -93,7 +134,8 @@ def _parser() -> argparse.ArgumentParser:
                                                     "(default: one per core)")
     rep.set_defaults(func=cmd_reproduce)
 
-    cert = sub.add_parser("certify", help="check the paper's conditions and certify a contraction rate for a scenario's design")
+    cert = sub.add_parser("certify", help="check the paper's conditions and certify a contraction rate for a scenario's design",
+                          parents=[ssp])
     cert.add_argument("scenario")
     cert.add_argument("--radius", type=_radius, default=0.1,
                       help="half-width of the neighbourhood around the reference, relative to each state's scale (default 0.1)")
@@ -102,7 +144,7 @@ def _parser() -> argparse.ArgumentParser:
     cert.set_defaults(func=cmd_certify)
 
     sw = sub.add_parser("sweep", help="run a scenario over a parameter grid (and random plant samples) on Dask; "
-                                      "table and plots of the metrics")
+                                      "table and plots of the metrics", parents=[ssp])
     sw.add_argument("scenario")
     sw.add_argument("--grid", action="append", default=[], metavar="COMPONENT.PARAMETER=START:STOP:N",
                     help="N equally spaced values from START to STOP (or V1,V2,...); repeat for a product grid")
@@ -111,7 +153,11 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--samples", type=int, default=0, help="random draws per grid point (same draws for every point)")
     sw.add_argument("--seed", type=int, default=0, help="seed of the random draws (default 0)")
     sw.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
-    sw.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use this running dask scheduler instead of a local cluster")
+    sw.add_argument("--scheduler", metavar="tls://HOST:PORT", help="use this running dask scheduler instead of a local cluster "
+                                                                  "(the local cluster uses TLS with temporary credentials)")
+    sw.add_argument("--tls-ca-file", help="with --scheduler: CA certificate of the cluster (PEM), as for `dask scheduler`")
+    sw.add_argument("--tls-cert", help="with --scheduler: this client's certificate (PEM)")
+    sw.add_argument("--tls-key", help="with --scheduler: this client's private key (PEM)")
     sw.add_argument("--out", help="output folder (default: sweep_SCENARIO_NAME)")
     sw.add_argument("--stop-time", type=float, help="stop time [s] of every run (default: the scenario's)")
     sw.add_argument("--step-size", type=float, help="communication step [s] (default: the scenario's)")
@@ -122,55 +168,140 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _read(name: str, fmu_dir: str | None = None):
+def _archive_options() -> argparse.ArgumentParser:
+    """Options of every command that reads a scenario: the limits of an .ssp archive."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--ssp-max-size", type=float, default=2048, metavar="MIB",
+                   help="refuse an .ssp archive that unpacks to more than this many MiB (default 2048)")
+    p.add_argument("--ssp-max-files", type=int, default=10_000, metavar="N",
+                   help="refuse an .ssp archive of more than N files (default 10000)")
+    p.add_argument("--allow-external", action="store_true",
+                   help="let an .ssp archive's .ssd reference files outside the archive (absolute paths, ..)")
+    return p
+
+
+def _limits(args):
+    from .engine.ssd import ArchiveLimits
+    return ArchiveLimits(max_bytes=int(args.ssp_max_size * 2**20), max_files=args.ssp_max_files,
+                         allow_external=args.allow_external)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("emcosim")
+    except PackageNotFoundError:                    # run from a checkout without installing
+        return "unknown (not installed)"
+
+
+def scenario_names() -> list[str]:
+    """The bare scenario names found in scenario_dirs()."""
+    from .engine.ssd import SSD_NAME
+    return sorted({d.name for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file()})
+
+
+def _resolve(name: str, limits=None) -> Path:
+    """The .ssd of a scenario (see engine.ssd.resolve_path); a bare name that matches no scenario
+    gets the closest names suggested."""
+    from .engine.ssd import resolve_path
+    try:
+        return resolve_path(name, scenario_dirs(), limits)
+    except ScenarioError:
+        if len(Path(name).parts) == 1 and not Path(name).exists():
+            close = difflib.get_close_matches(name, scenario_names(), n=3, cutoff=0.6)
+            if close:
+                raise ScenarioError(f"{name}: no such scenario; did you mean {' or '.join(close)}? "
+                                    "(`emcosim info` lists them)") from None
+        raise
+
+
+def _read(name: str, fmu_dir: str | None = None, args=None):
     from .engine.ssd import read_scenario
-    return read_scenario(name, scenario_dirs(), fmu_dir=fmu_dir)
+    limits = None if args is None else _limits(args)
+    return read_scenario(_resolve(name, limits), fmu_dir=fmu_dir, limits=limits)
+
+
+def default_record(scenario) -> list[str] | None:
+    """Every output connector and every input that no connection feeds (in component order): each
+    connected value once. An input fed through a linear transformation differs from its source and
+    is recorded too. None (the master's default) for a scenario without such connectors."""
+    fed = {c.end for c in scenario.connections if c.factor == 1.0 and c.offset == 0.0}
+    names = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
+             if k.kind == "output" or (k.kind == "input" and f"{c.name}.{k.name}" not in fed)]
+    return names or None
+
+
+def _positive(value: float | None, option: str) -> None:
+    if value is not None and not value > 0:
+        raise ScenarioError(f"{option} {value:g}: must be a positive number")
 
 
 def cmd_run(args) -> int:
-    from .engine.master import simulate
+    from .engine.master import MAX_STEPS, simulate
+    from .engine.results import Result, ResultFile, check_destination
     from .progress import ProgressBar
-    from .engine.results import plot
 
-    scenario = _read(args.scenario, args.fmu_dir)
+    _positive(args.step_size, "--step-size")
+    _positive(args.tolerance, "--tolerance")
+    scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:
         name, sep, value = item.partition("=")
         if not sep or "." not in name:
             raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
         start_values[name.strip()] = value.strip()
-    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else None
-    output = Path(args.output or f"{scenario.name}.csv")
+    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else default_record(scenario)
+    if args.plot:
+        check_destination(Path(args.plot))
+    sink = ResultFile(args.output or f"{scenario.name}.csv", what=scenario.name)   # checked before the run
+    for note in sink.notes:
+        print(f"emcosim: note: {note}", file=sys.stderr)
     bar = None if args.no_progress else ProgressBar(scenario.name)
-    failure = None
+    result = failure = None
     try:
-        result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
-                          start_values=start_values, record=record, progress=bar, tolerance=args.tolerance,
-                          coupling_order=args.coupling_order, max_step=args.max_step)
-    except SimulationError as exc:
+        with sink:
+            result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
+                              start_values=start_values, record=record, progress=bar, tolerance=args.tolerance,
+                              coupling_order=args.coupling_order, max_step=args.max_step,
+                              sink=sink, max_steps=args.max_steps or MAX_STEPS)
+    except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
         if bar is not None:
             bar.close()
     for warning in getattr(result, "warnings", []):
         print(f"emcosim: warning: {warning}", file=sys.stderr)
-    if result is not None and len(result):
-        result.write_csv(output)
-        if args.plot:
-            plot(result, args.plot, title=scenario.name)
+    if sink.final is not None and args.plot:
+        plot_run(scenario, Result.from_csv(sink.final), args.plot, start_values)
     if failure is not None:
-        saved = f"; {len(result)} rows up to t = {result.time[-1]:.9g} s saved to {output}" if result and len(result) else ""
-        raise SimulationError(f"{failure}{saved}")
-    print(f"{scenario.name}: {len(result)} rows to {output}" + (f", plot {args.plot}" if args.plot else ""))
+        if sink.final is not None:
+            failure.args = (f"{failure}; {sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}",)
+        raise failure
+    print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {args.plot}" if args.plot else ""))
     if getattr(result, "step_control", None) is not None:
         print(f"{scenario.name}: {result.step_control.summary()}")
     return 0
 
 
+def plot_run(scenario, result, path: str, start_values: dict) -> None:
+    """The paper's figure of a run for this suite's scenarios (emcosim.paper.run_figure), else the
+    engine's figure of the recorded variables in their units."""
+    from .engine import plotting
+    from .paper.run_figure import run_figure
+
+    spec = run_figure(scenario, result, start_values)
+    if spec is None:
+        spec = plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
+    try:
+        plotting.save(plotting.draw(spec), path)
+    except ValueError as exc:                       # e.g. an image format matplotlib does not know
+        raise ScenarioError(f"--plot {path}: {exc}") from None
+
+
 def cmd_export(args) -> int:
     from .engine.container import export_container
 
-    scenario = _read(args.scenario, args.fmu_dir)
+    scenario = _read(args.scenario, args.fmu_dir, args)
     export_container(scenario, Path(args.output), step_size=args.step_size)
     print(f"{scenario.name}: container FMU written to {args.output}")
     return 0
@@ -187,10 +318,10 @@ def cmd_info(args) -> int:
         paths = sorted(str(d) for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file())
         if not paths:
             raise ScenarioError("no scenarios found (looked in ./scenarios and the project's scenarios/)")
+    scenarios = [_read(path, args.fmu_dir, args) for path in paths]        # every error before any output
     fmus = {}
     print("Scenarios:")
-    for path in paths:
-        s = _read(path, args.fmu_dir)
+    for s in scenarios:
         h = f"{s.step_size:g} s" if s.step_size else "?"
         stop = f"{s.stop_time:g} s" if s.stop_time is not None else "?"
         print(f"  {s.name}: stop time {stop}, step {h}")
@@ -236,9 +367,8 @@ def _radius(text: str) -> float:
 
 def cmd_certify(args) -> int:
     from .paper.certify import certify_scenario
-    from .engine.ssd import resolve_path
 
-    path = resolve_path(args.scenario, scenario_dirs())
+    path = _resolve(args.scenario, _limits(args))
     try:
         cert = certify_scenario(path, radius=args.radius, include_start=args.include_start)
     except ValueError as exc:                       # an invalid design: a parameter the paper's conditions refuse
@@ -251,22 +381,45 @@ def cmd_certify(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .paper.sweep import parse_grid, parse_sample, sweep
+    from .engine.results import OutputFolder, reason_of
+    from .paper.sweep import RowStream, parse_grid, parse_sample, security, sweep
     from .paper.sweep_output import plot, write_table
 
     grid = [parse_grid(g) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
-    scenario = _read(args.scenario, args.fmu_dir)
-    rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
-                       step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
-                       stream=None if args.no_progress else sys.stderr)
+    scenario = _read(args.scenario, args.fmu_dir, args)
+    tls = security(args.tls_ca_file, args.tls_cert, args.tls_key)
     out = Path(args.out or f"sweep_{scenario.name}")
-    files = write_table(rows, out, info)
-    if not args.no_plots:
-        horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
-        files += plot(rows, dict(grid), info["units"], out, title=f"{scenario.name}, horizon {horizon:g} s")
+    folder = OutputFolder(out, recognize=("sweep.json", "sweep.csv"))     # checked before the sweep starts
+    for note in folder.notes:
+        print(f"emcosim: note: {note}", file=sys.stderr)
+    stream = RowStream(folder.path / "sweep.csv", [n for n, _ in grid] + [n for n, _, _ in samples])
+    try:
+        try:
+            rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
+                               step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
+                               stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream)
+        finally:
+            stream.close()
+        files = write_table(rows, folder.path, info)
+        if not args.no_plots:
+            horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
+            files += plot(rows, dict(grid), info["units"], folder.path, title=f"{scenario.name}, horizon {horizon:g} s",
+                          horizon=horizon)
+    except BaseException as exc:
+        if stream.rows == 0:
+            folder.discard()
+            raise
+        kept = folder.abandon(reason_of(exc))
+        note = f"{stream.rows} finished runs kept in {kept / 'sweep.csv'} ({out} was left as it was)"
+        if isinstance(exc, ScenarioError):
+            exc.args = (f"{exc}; {note}",)
+        else:
+            print(f"emcosim: {note}", file=sys.stderr)
+        raise
+    folder.commit()
     print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {info['workers']} worker{'s' if info['workers'] != 1 else ''}, "
           f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
     return 0

@@ -6,6 +6,10 @@ for tracking, the reference jet q_star, q_star_dot, q_star_ddot, q_star_dddot (i
 The controller is built by components.catalog.controller. u depends on the inputs only
 (direct feedthrough, no state): it is computed when read, so a master reads it right after setting the
 inputs, without a one-step delay. doStep only checks that u could be computed.
+FMI 2.0 derivatives: the exact Jacobian of u with respect to the inputs (fmi2GetDirectionalDerivative)
+and du/dt by the chain rule from the input derivatives the master set (fmi2GetRealOutputDerivatives,
+order 1; an input without a derivative counts as constant), both from
+components.controller.Controller.u_derivative (complex step of the law).
 """
 from __future__ import annotations
 
@@ -28,6 +32,11 @@ STATE_NAMES = ("q", "p", "x_e")
 class ControllerSlave(EMSlave):
     plant_module: ClassVar[ModuleType]                          # components.mems or components.maglev
     input_start: ClassVar[tuple[float, ...]]                    # q, p, x_e (and the jet, if tracking)
+    # FMI 2.0 derivatives (hooks at the end of the class)
+    can_interpolate_inputs = True                               # accepts input derivatives (for du/dt)
+    max_input_derivative_order = 1
+    max_output_derivative_order = 1
+    provides_directional_derivative = True
 
     def declare(self) -> None:
         module = self.plant_module
@@ -131,3 +140,26 @@ class ControllerSlave(EMSlave):
             return True
         self.log_error(f"{self._u_error} (doStep at t = {t:.9g} s)")
         return False
+
+    # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
+    def u_derivative(self, directions: list[float]) -> float:
+        """sum_j du/d(input_j) directions_j at the current inputs (ValueError with the reason)."""
+        x = [self.values[name] for name in self.input_names]
+        for name, value in zip(self.input_names, x):
+            if not math.isfinite(value):
+                raise ValueError(f"input {name} = {value} is not finite")
+        controller = self.controller if self.controller is not None else self.make_controller()
+        return float(controller.u_derivative(x, directions))
+
+    def output_derivative(self, name: str, order: int) -> float:
+        """du/dt = (du/d inputs) (d inputs/dt), the input rates as set by the master (0 where none)."""
+        rates = [self.input_derivatives.get(n, {}).get(1, 0.0) for n in self.input_names]
+        return self.u_derivative(rates)
+
+    def directional_derivative(self, unknowns: list[str], knowns: list[str], seeds: list[float]) -> list[float]:
+        """sum_j du/d(knowns_j) seeds_j for each unknown (u is the only output)."""
+        index = {n: i for i, n in enumerate(self.input_names)}
+        v = [0.0] * len(self.input_names)
+        for name, seed in zip(knowns, seeds):
+            v[index[name]] += seed
+        return [self.u_derivative(v)] * len(unknowns)

@@ -3,15 +3,23 @@
 - Variables are declared with unit and description; `to_xml` completes pythonfmu's modelDescription
   with UnitDefinitions, units, ModelStructure dependencies and InitialUnknowns, and a GUID derived
   from the content (reproducible builds).
-- FMU state: `_get_fmu_state` / `_set_fmu_state` save every variable plus what an adapter keeps
-  outside them (`save_internal` / `restore_internal`), so a master can roll a step back exactly.
-- Errors never escape into the host as crashes. pythonfmu 0.7.0 turns any Python exception into
-  fmi2Fatal and then releases the slave object (once at the exception, once more in fmi2FreeInstance).
-  So: a failed doStep logs the reason and returns False (fmi2Discard, state unchanged); a failed
-  initialization logs the reason and raises, after giving pythonfmu the extra reference it will drop
-  (`_raise_to_host`), so the instance stays valid and can be freed. fmi2Error is not reachable from a
-  pythonfmu 0.7.0 slave. pythonfmu forwards log messages only to hosts that instantiated with
-  loggingOn, so errors are also echoed to stderr.
+- FMU state: a snapshot of every variable plus what an adapter keeps outside them (`save_internal` /
+  `restore_internal`), so a master can roll a step back exactly. A state is checked before it is
+  applied (this FMU's, this build's, every variable with a number), and applied all or nothing;
+  serialized states carry a header, a format version and a sha256 checksum that deserialization
+  checks.
+- Errors never escape into the host as crashes, and every FMI call gets its proper status. pythonfmu
+  0.7.0 turns any Python exception into fmi2Fatal and then releases the slave object (once at the
+  exception, once more in fmi2FreeInstance), returns fmi2OK whatever a setter logs, and forwards log
+  messages only to hosts that instantiated with loggingOn. So the FMU's binary (the loader,
+  emcosim_fmu_loader.c) answers the FMI calls itself through the `fmi2_*` methods below, which return
+  (status, ..., message) and never raise: fmi2Error for a bad argument or a call in the wrong state
+  (unknown or wrong value reference, an output set, a fixed parameter set after initialization, doStep
+  before initialization or after fmi2Terminate, a non-finite output, an FMU state that is not this
+  FMU's), fmi2Discard for a step that failed with the state kept at its start; the loader logs the
+  message through the host's logger, and forwards warnings and errors whatever loggingOn says. The
+  pythonfmu entry points (`do_step`, `exit_initialization_mode`, ...) remain for pythonfmu's own
+  calls.
 - pythonfmu 0.7.0 also releases the script module's namespace once per fmi2Instantiate; every FMU
   script calls `hold_script_globals(globals())` so that a second instance does not crash the host.
   (Its exit-time heap corruption is worked around by the loader, which registers the library's
@@ -31,8 +39,8 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import json
 import math
-import sys
 import threading
 import uuid
 from dataclasses import dataclass, field
@@ -82,6 +90,12 @@ REFERENCE_JET = (("q_star", "m", "reference position q*"),
 
 # FMI 2.0 status codes returned by the fmi2_* methods to the loader
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
+_OK = (OK, "")
+
+# serialized FMU state: header, format version (1 byte), sha256 of the payload (32 bytes), JSON payload
+STATE_HEADER = b"emcosim FMU state\n"
+STATE_FORMAT = 1
+STATE_KEYS = {"model", "build", "values", "time", "initialized", "input_derivatives", "internal"}
 
 
 @dataclass
@@ -182,7 +196,10 @@ class EMSlave(Fmi2Slave):
         self._integer_vrs: set[int] = set()
         self._real_inputs: dict[int, str] = {}                      # value reference -> name
         self.initialized = False
+        self.entered = False                                        # in initialization mode
+        self.terminated = False
         self.time = 0.0
+        self._set_names: tuple[list[int], list[str]] = ([], [])     # the last Real inputs set: vrs, names
         self.input_derivatives: dict[str, dict[int, float]] = {}     # input name -> {order: value}
         self.declare()
         keep_thread_state()
@@ -254,119 +271,222 @@ class EMSlave(Fmi2Slave):
     def inputs_changed(self) -> None:
         """Hook: an input was set (controllers drop their cached output)."""
 
-    # ---- FMI get/set (never raise into the host) --------------------------------------------------
-    def _check_type(self, vr: int, integer: bool) -> None:
-        if vr not in (self._integer_vrs if integer else self._real_vrs):
-            what = f"variable {self.vars[vr].name}" if vr in self.vars else f"valueReference {vr}"
-            raise TypeError(f"{what} is not of type {'Integer' if integer else 'Real'}")
+    # ---- life cycle (the adapters' part) ---------------------------------------------------------
+    def initialize(self) -> None:
+        raise NotImplementedError
 
-    def _get(self, vrs, integer: bool) -> list:
-        getters = self._getters
-        if (self._integer_vrs if integer else self._real_vrs).issuperset(vrs):   # fast path: all valid
-            try:
-                return [int(getters[vr]()) for vr in vrs] if integer else [float(getters[vr]()) for vr in vrs]
-            except Exception:                                         # noqa: BLE001 - retried one by one below
-                pass
-        out = []
-        for vr in vrs:
-            try:
-                self._check_type(vr, integer)
-                value = getters[vr]()
-                out.append(int(value) if integer else float(value))
-            except Exception as exc:                                  # noqa: BLE001 - must not reach the host
-                self.log_error(f"get of valueReference {vr} failed: {exc}")
-                out.append(0 if integer else math.nan)
-        return out
+    def step(self, t: float, h: float) -> bool:
+        raise NotImplementedError
 
-    def _set(self, vrs, values, integer: bool) -> None:
-        if not integer:                                               # fast path: Real inputs only
-            inputs, store = self._real_inputs, self.values
-            try:
-                for vr, value in zip(vrs, values):
-                    store[inputs[vr]] = float(value)
-            except KeyError:                                          # not all inputs: set one by one below
-                pass
-            else:
-                self.inputs_changed()
-                return
-        for vr, value in zip(vrs, values):
-            try:
-                self._check_type(vr, integer)
-                setter = self._setters[vr]
-                if setter is None:
-                    raise TypeError(f"variable {self.vars[vr].name} is an output and cannot be set")
-                setter(value)
-            except Exception as exc:                                  # noqa: BLE001
-                self.log_error(f"set of valueReference {vr} failed: {exc}")
+    def log_error(self, message: str) -> None:
+        """Log with status error (the loader forwards it to the host's logger whatever loggingOn says)."""
+        self.log(message, Fmi2Status.error)
 
+    # ---- pythonfmu's entry points (the loader calls the fmi2_* methods below instead) ------------------
     def get_real(self, vrs):
-        return self._get(vrs, False)
+        return self._values_or_log(self.fmi2_get_real(vrs))
 
     def set_real(self, vrs, values):
-        self._set(vrs, values, False)
+        self._log_status(self.fmi2_set_real(vrs, values))
 
     def get_integer(self, vrs):
-        return self._get(vrs, True)
+        return self._values_or_log(self.fmi2_get_integer(vrs))
 
     def set_integer(self, vrs, values):
-        self._set(vrs, values, True)
+        self._log_status(self.fmi2_set_integer(vrs, values))
 
-    # ---- life cycle -----------------------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
-        self.time = float(start_time)
+        self._log_status(self.fmi2_setup_experiment(tolerance is not None, tolerance or 0.0, start_time,
+                                                    stop_time is not None, stop_time or 0.0))
+
+    def enter_initialization_mode(self):
+        self._log_status(self.fmi2_enter_initialization_mode())
 
     def exit_initialization_mode(self):
+        status, message = self.fmi2_exit_initialization_mode()
+        if status > WARNING:
+            self._raise_to_host(RuntimeError(message), message)
+
+    def do_step(self, current_time, step_size):
+        status, message = self.fmi2_do_step(current_time, step_size)
+        self._log_status((status, message))
+        return status == OK
+
+    def terminate(self):
+        self._log_status(self.fmi2_terminate())
+
+    def _log_status(self, answer: tuple) -> None:
+        if answer[-1]:
+            self.log(answer[-1], Fmi2Status(answer[0]))
+
+    def _values_or_log(self, answer: tuple) -> list:
+        self._log_status(answer)
+        return answer[1]
+
+    def _raise_to_host(self, exc: Exception, message: str) -> None:
+        """Fail the current pythonfmu call (pythonfmu reports fmi2Fatal) with `message`, keeping this
+        instance valid: pythonfmu 0.7.0 releases the slave's references once more than it holds after an
+        exception, so it gets the extra references first. Versions of pythonfmu not measured get a log
+        entry instead."""
+        if PYTHONFMU_VERSION not in REFCOUNT_COMPENSATED_VERSIONS:
+            self.log_error(message)
+            return
+        for obj in (self, type(self), self.log_queue):
+            ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+        raise RuntimeError(message) from exc
+
+    # ---- FMI calls answered by the loader: (status, ..., message), never an exception -----------------
+    def fmi2_setup_experiment(self, tolerance_defined: int, tolerance: float, start_time: float,
+                              stop_time_defined: int, stop_time: float) -> tuple[int, str]:
+        where = f"{self.model_identifier}: fmi2SetupExperiment"
+        if self.entered or self.initialized or self.terminated:
+            return ERROR, f"{where} is allowed only after fmi2Instantiate or fmi2Reset"
+        if not math.isfinite(start_time):
+            return ERROR, f"{where}: startTime = {start_time!r} is not finite"
+        if stop_time_defined and not stop_time >= start_time:
+            return ERROR, f"{where}: stopTime = {stop_time!r} is before startTime = {start_time!r}"
+        if tolerance_defined and not tolerance > 0:
+            return ERROR, f"{where}: tolerance = {tolerance!r} is not > 0"
+        self.time = float(start_time)
+        return _OK
+
+    def fmi2_enter_initialization_mode(self) -> tuple[int, str]:
+        if self.entered or self.initialized or self.terminated:
+            return ERROR, (f"{self.model_identifier}: fmi2EnterInitializationMode is allowed only after "
+                           "fmi2Instantiate or fmi2Reset")
+        self.entered = True
+        return _OK
+
+    def fmi2_exit_initialization_mode(self) -> tuple[int, str]:
+        """Build the model from the parameters; on failure fmi2Error with the reason, and the instance stays
+        in initialization mode (parameters can be corrected and the call repeated)."""
+        if not self.entered:
+            return ERROR, (f"{self.model_identifier}: fmi2ExitInitializationMode is allowed only in "
+                           "initialization mode (after fmi2EnterInitializationMode)")
         try:
             self.initialize()
-        except Exception as exc:                                      # noqa: BLE001
-            self.initialized = False
+        except Exception as exc:                                      # noqa: BLE001 - reported as the status
             reason = str(exc)
             if isinstance(exc, ArithmeticError):                      # name the suspects
                 changed = [f"{v.name} = {self.values[v.name]!r}" for v in self.variables
                            if v.causality == "parameter" and self.values[v.name] != v.start]
                 reason = (f"{type(exc).__name__} ({exc}) evaluating the model with the parameters changed "
                           f"from their defaults: {', '.join(changed) or 'none'}")
-            self._raise_to_host(exc, f"{self.model_identifier}: initialization failed: {reason}")
-        self.initialized = True
+            return ERROR, f"{self.model_identifier}: initialization failed: {reason}"
+        self.initialized, self.entered = True, False
+        return _OK
 
-    def initialize(self) -> None:
-        raise NotImplementedError
+    def fmi2_terminate(self) -> tuple[int, str]:
+        if self.terminated:
+            return ERROR, f"{self.model_identifier}: fmi2Terminate called twice"
+        self.terminated = True
+        return _OK
 
-    def do_step(self, current_time, step_size):
+    def fmi2_do_step(self, current_time: float, step_size: float) -> tuple[int, str]:
+        """fmi2OK after a successful step; fmi2Discard when the adapter refuses the step (it logged why;
+        the state stays at the start of the step); fmi2Error for a call in the wrong state or a step
+        that is not finite and positive."""
+        where = f"{self.model_identifier}: fmi2DoStep"
+        if self.terminated:
+            return ERROR, f"{where} after fmi2Terminate"
+        if not self.initialized:
+            return ERROR, f"{where} before a successful initialization (fmi2ExitInitializationMode)"
+        if not (math.isfinite(current_time) and math.isfinite(step_size) and step_size > 0):
+            return ERROR, (f"{where}: currentCommunicationPoint = {current_time!r}, communicationStepSize = "
+                           f"{step_size!r}: both must be finite and the step > 0")
         try:
-            if not self.initialized:
-                self.log_error(f"{self.model_identifier}: doStep before a successful initialization")
-                return False
-            ok = bool(self.step(float(current_time), float(step_size)))
-        except Exception as exc:                                      # noqa: BLE001
-            self.log_error(f"{self.model_identifier}: doStep at t = {current_time:.9g} s failed: {exc}")
-            return False
-        if ok:
-            self.time = current_time + step_size
-            self.input_derivatives.clear()                           # set again by the master for the next step
-        return ok
+            ok = bool(self.step(current_time, step_size))
+        except Exception as exc:                                      # noqa: BLE001 - the state is kept
+            return DISCARD, f"{where} at t = {current_time:.9g} s failed: {type(exc).__name__}: {exc}"
+        if not ok:
+            return DISCARD, ""
+        self.time = current_time + step_size
+        self.input_derivatives.clear()                               # set again by the master for the next step
+        return _OK
 
-    def step(self, t: float, h: float) -> bool:
-        raise NotImplementedError
+    def fmi2_set_real(self, vrs: list[int], values: list[float]) -> tuple[int, str]:
+        if not self.terminated:                                       # fast path: Real inputs
+            cached_vrs, names = self._set_names
+            if vrs != cached_vrs:
+                inputs = self._real_inputs
+                if not all(vr in inputs for vr in vrs):
+                    return self._set_checked(vrs, values, False)
+                names = [inputs[vr] for vr in vrs]
+                self._set_names = (list(vrs), names)
+            store = self.values
+            for name, value in zip(names, values):
+                store[name] = value
+            self.inputs_changed()
+            return _OK
+        return self._set_checked(vrs, values, False)
 
-    def log_error(self, message: str) -> None:
-        """Log with status error, and echo to stderr: pythonfmu 0.7.0 forwards log messages to the host
-        only when it instantiated the FMU with loggingOn, and a failure must never pass unnoticed."""
-        self.log(message, Fmi2Status.error)
-        print(f"[{self.instance_name}] error: {message}", file=sys.stderr, flush=True)
+    def fmi2_set_integer(self, vrs: list[int], values: list[int]) -> tuple[int, str]:
+        return self._set_checked(vrs, values, True)
 
-    def _raise_to_host(self, exc: Exception, message: str) -> None:
-        """Fail the current FMI call (pythonfmu reports fmi2Fatal) with `message`, keeping this instance
-        valid: see the module docstring. Versions of pythonfmu not measured get a log entry and the
-        failure is reported by the next doStep (fmi2Discard) instead."""
-        if PYTHONFMU_VERSION not in REFCOUNT_COMPENSATED_VERSIONS:
-            self.log_error(message)
-            return
-        for obj in (self, type(self), self.log_queue):
-            ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
-        # pythonfmu logs the exception itself (and loses it if the log queue is not empty); echo to stderr
-        print(f"[{self.instance_name}] error: {message}", file=sys.stderr, flush=True)
-        raise RuntimeError(message) from exc
+    def _set_checked(self, vrs: list[int], values: list, integer: bool) -> tuple[int, str]:
+        """Set all or nothing: every value reference must be a settable variable of the call's type."""
+        where = f"{self.model_identifier}: fmi2Set{'Integer' if integer else 'Real'}"
+        if self.terminated:
+            return ERROR, f"{where} after fmi2Terminate"
+        for vr in vrs:
+            var = self._variable(vr)
+            if var is None:
+                return ERROR, f"{where}: valueReference {vr} is not a variable of this FMU"
+            if var.causality == "output":
+                return ERROR, f"{where}: {var.name} is an output; it cannot be set"
+            if var.integer != integer:
+                return ERROR, f"{where}: {var.name} is {'an Integer' if var.integer else 'a Real'} variable"
+            if var.causality == "parameter" and self.initialized:
+                return ERROR, f"{where}: parameter {var.name} is fixed after initialization"
+        inputs = False
+        for vr, value in zip(vrs, values):
+            var = self.variables[vr]
+            self.values[var.name] = int(value) if integer else float(value)
+            inputs = inputs or var.causality == "input"
+        if inputs:
+            self.inputs_changed()
+        return _OK
+
+    def fmi2_get_real(self, vrs: list[int]) -> tuple[int, list[float], str]:
+        """The values; fmi2Error naming the variable for a value reference that is not a Real variable,
+        a value that cannot be computed or a value that is not finite (the FMUs never return a
+        non-finite output with fmi2OK)."""
+        if self._real_vrs.issuperset(vrs):                            # fast path
+            getters = self._getters
+            try:
+                values = [float(getters[vr]()) for vr in vrs]
+            except Exception:                                         # noqa: BLE001 - found again below
+                pass
+            else:
+                total = sum(values)
+                if total - total == 0.0:                              # all finite (else nan, or an overflow)
+                    return OK, values, ""
+        return self._get_checked(vrs, False)
+
+    def fmi2_get_integer(self, vrs: list[int]) -> tuple[int, list[int], str]:
+        return self._get_checked(vrs, True)
+
+    def _get_checked(self, vrs: list[int], integer: bool) -> tuple[int, list, str]:
+        where = f"{self.model_identifier}: fmi2Get{'Integer' if integer else 'Real'}"
+        values, problems = [], []
+        for vr in vrs:
+            var = self._variable(vr)
+            if var is None or var.integer != integer:
+                problems.append(f"{self._describe_vr(vr)} is not {'an Integer' if integer else 'a Real'} variable")
+                values.append(0 if integer else math.nan)
+                continue
+            try:
+                value = self._getters[vr]()
+                value = int(value) if integer else float(value)
+            except Exception as exc:                                  # noqa: BLE001 - reported as the status
+                problems.append(f"{var.name} cannot be computed: {type(exc).__name__}: {exc}")
+                value = 0 if integer else math.nan
+            if not integer and not math.isfinite(value):
+                problems.append(f"{var.name} = {value} is not finite")
+            values.append(value)
+        if problems:
+            return ERROR, values, f"{where}: " + "; ".join(problems)
+        return OK, values, ""
 
     # ---- FMU state -----------------------------------------------------------------------------
     def save_internal(self) -> dict:
@@ -375,30 +495,114 @@ class EMSlave(Fmi2Slave):
     def restore_internal(self, internal: dict) -> None:
         pass
 
-    def _get_fmu_state(self):
+    def fmi2_get_fmu_state(self) -> tuple[int, dict | None, str]:
         try:
-            return {"values": dict(self.values), "time": self.time, "initialized": self.initialized,
-                    "input_derivatives": {k: dict(v) for k, v in self.input_derivatives.items()},
-                    "internal": self.save_internal()}
-        except Exception as exc:                                      # noqa: BLE001
-            self.log_error(f"{self.model_identifier}: getFMUstate failed: {exc}")
-            return {}
+            return OK, self._snapshot(), ""
+        except Exception as exc:                                      # noqa: BLE001 - reported as the status
+            return ERROR, None, f"{self.model_identifier}: fmi2GetFMUstate failed: {type(exc).__name__}: {exc}"
+
+    def fmi2_set_fmu_state(self, state: dict) -> tuple[int, str]:
+        """Apply a state after checking it is this FMU's and complete; all or nothing."""
+        where = f"{self.model_identifier}: fmi2SetFMUstate"
+        problem = self._state_problem(state)
+        if problem:
+            return ERROR, f"{where}: {problem}; the instance keeps its state"
+        before = self._snapshot()
+        try:
+            self._apply_state(state)
+        except Exception as exc:                                      # noqa: BLE001 - rolled back, reported
+            try:
+                self._apply_state(before)
+            except Exception as again:                                # noqa: BLE001
+                return ERROR, f"{where}: {type(exc).__name__}: {exc}; restoring the previous state failed too: {again}"
+            return ERROR, (f"{where}: the state could not be applied ({type(exc).__name__}: {exc}); the instance "
+                           "keeps its state")
+        return _OK
+
+    def fmi2_serialize_fmu_state(self, state: dict) -> tuple[int, bytes, str]:
+        """header + format version + sha256(payload) + payload (JSON)."""
+        try:
+            payload = json.dumps(state, sort_keys=True).encode()
+        except (TypeError, ValueError) as exc:
+            return ERROR, b"", f"{self.model_identifier}: fmi2SerializeFMUstate failed: {exc}"
+        return OK, STATE_HEADER + bytes([STATE_FORMAT]) + hashlib.sha256(payload).digest() + payload, ""
+
+    def fmi2_deserialize_fmu_state(self, data: bytes) -> tuple[int, dict | None, str]:
+        """The state of serialized bytes, after checking header, format version, checksum and content."""
+        where = f"{self.model_identifier}: fmi2DeSerializeFMUstate"
+        start = len(STATE_HEADER) + 1 + 32
+        if len(data) < start or not data.startswith(STATE_HEADER):
+            return ERROR, None, f"{where}: {len(data)} bytes that are not a serialized emcosim FMU state"
+        if data[len(STATE_HEADER)] != STATE_FORMAT:
+            return ERROR, None, (f"{where}: format version {data[len(STATE_HEADER)]} of the serialized state; "
+                                 f"this FMU reads version {STATE_FORMAT}")
+        payload = data[start:]
+        if hashlib.sha256(payload).digest() != data[start - 32:start]:
+            return ERROR, None, f"{where}: checksum mismatch: the bytes were changed or cut"
+        try:
+            state = json.loads(payload)
+            state["input_derivatives"] = {name: {int(order): value for order, value in orders.items()}
+                                          for name, orders in state["input_derivatives"].items()}
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            return ERROR, None, f"{where}: unreadable state: {type(exc).__name__}: {exc}"
+        problem = self._state_problem(state)
+        if problem:
+            return ERROR, None, f"{where}: {problem}"
+        return OK, state, ""
+
+    def _snapshot(self) -> dict:
+        return {"model": self.model_identifier, "build": BUILD, "values": dict(self.values), "time": self.time,
+                "initialized": self.initialized,
+                "input_derivatives": {k: dict(v) for k, v in self.input_derivatives.items()},
+                "internal": self.save_internal()}
+
+    def _state_problem(self, state) -> str:
+        """'' if `state` can be applied to this FMU, else what is wrong with it."""
+        if not isinstance(state, dict) or set(state) != STATE_KEYS:
+            return "not a state of an emcosim FMU (wrong content)"
+        if state["model"] != self.model_identifier or state["build"] != BUILD:
+            return (f"a state of {state['model']} (build {str(state['build'])[:12]}), not of this FMU "
+                    f"{self.model_identifier} (build {BUILD[:12]})")
+        values = state["values"]
+        if not isinstance(values, dict) or set(values) != set(self.values):
+            return "its variables are not this FMU's"
+        for name, value in values.items():
+            kind = int if self.by_name[name].integer else (int, float)
+            if isinstance(value, bool) or not isinstance(value, kind):
+                return f"its value of {name} is not a number of the variable's type: {value!r}"
+        if isinstance(state["time"], bool) or not isinstance(state["time"], (int, float)) or not math.isfinite(state["time"]):
+            return f"its time {state['time']!r} is not a finite number"
+        if not isinstance(state["initialized"], bool) or not isinstance(state["internal"], dict):
+            return "it is incomplete"
+        derivatives = state["input_derivatives"]
+        inputs = set(self._real_inputs.values())
+        if not isinstance(derivatives, dict) or not all(
+                name in inputs and isinstance(orders, dict)
+                and all(isinstance(k, int) and isinstance(v, (int, float)) for k, v in orders.items())
+                for name, orders in derivatives.items()):
+            return "its input derivatives are not this FMU's"
+        return ""
+
+    def _apply_state(self, state: dict) -> None:
+        changed = any(self.values[k] != v for k, v in state["values"].items()
+                      if self.by_name[k].causality == "parameter")
+        self.values.update(state["values"])
+        self.time = float(state["time"])
+        if state["initialized"] and (changed or not self.initialized):
+            self.initialize()
+        self.initialized = state["initialized"]
+        self.input_derivatives = {name: {int(order): float(value) for order, value in orders.items()}
+                                  for name, orders in state["input_derivatives"].items()}
+        self.restore_internal(state["internal"])
+        self.inputs_changed()
+
+    def _get_fmu_state(self):
+        answer = self.fmi2_get_fmu_state()
+        self._log_status(answer)
+        return answer[1] or {}
 
     def _set_fmu_state(self, state):
-        try:
-            changed = any(self.values.get(k) != v for k, v in state["values"].items()
-                          if self.by_name[k].causality == "parameter")
-            self.values.update(state["values"])
-            self.time = state["time"]
-            if state["initialized"] and (changed or not self.initialized):
-                self.initialize()
-            self.initialized = state["initialized"]
-            self.input_derivatives = {name: {int(order): float(value) for order, value in orders.items()}
-                                      for name, orders in state.get("input_derivatives", {}).items()}
-            self.restore_internal(state["internal"])
-            self.inputs_changed()
-        except Exception as exc:                                      # noqa: BLE001
-            self.log_error(f"{self.model_identifier}: setFMUstate failed: {exc}")
+        self._log_status(self.fmi2_set_fmu_state(state))
 
     # ---- FMI 2.0 derivatives (called by the loader with the GIL held; never raise) ----------------------
     def fmi2_set_real_input_derivatives(self, vrs: list[int], orders: list[int],

@@ -2,8 +2,12 @@
 
 Variables: every entry of the plant module's PARAMETERS, the initial state q_0, p_0, x_e_0, the
 integration tolerance rtol (parameters); the input u; the outputs q, p, x_e (states: no direct
-feedthrough) and the stored energy H. doStep holds u over the step and calls
-components.plant_step.PlantStepper; the FMU state includes the stepper's proposed substep.
+feedthrough) and the stored energy H. doStep calls components.plant_step.PlantStepper with u held over
+the step or, when the master has set input derivatives (fmi2SetRealInputDerivatives, orders 1 and 2), with
+the polynomial u + u' tau + u'' tau^2 / 2. Output derivatives (orders 1 and 2) of q, p, x_e and H are the
+exact ones of eq. (open-loop elecmech) at the current state (PlantStepper.time_derivatives); the input
+they use is the polynomial's value and rate at the end of the last step until the master sets u again.
+The FMU state includes the stepper's proposed substep and that end-of-step input.
 """
 from __future__ import annotations
 
@@ -24,6 +28,10 @@ class PlantSlave(EMSlave):
     plant_module: ClassVar[ModuleType]                          # components.mems or components.maglev
     initial_state: ClassVar[tuple[float, float, float]]
     input_start: ClassVar[float] = 0.0
+    # FMI 2.0 derivatives (hooks at the end of the class)
+    can_interpolate_inputs = True
+    max_input_derivative_order = 2
+    max_output_derivative_order = 2
 
     def declare(self) -> None:
         module = self.plant_module
@@ -47,6 +55,9 @@ class PlantSlave(EMSlave):
         self.stepper: PlantStepper | None = None
         self.eta: tuple[float, float, float] | None = None
         self._H: float | None = None
+        self.u_end: tuple[float, float] | None = None          # (u, u') at the end of the last step
+        self._keep_u_end = False
+        self._rates: tuple | None = None                        # (key, time derivatives) of the last request
 
     # ---- outputs ------------------------------------------------------------------------------
     def initial(self) -> tuple[float, float, float]:
@@ -73,27 +84,59 @@ class PlantSlave(EMSlave):
             plant.check_state(np.array(eta))
         except DomainError as exc:
             raise ValueError(f"initial state (q_0, p_0, x_e_0) = {eta} is not admissible: {exc}") from None
-        self.plant, self.stepper, self.eta, self._H = plant, stepper, eta, None
+        self.plant, self.stepper, self.eta, self._H, self.u_end = plant, stepper, eta, None, None
 
     def step(self, t: float, h: float) -> bool:
         u = self.values["u"]
+        du, d2u = self.input_rates()
         try:
-            self.eta = self.stepper.advance(*self.eta, u, h)
+            self.eta = self.stepper.advance(*self.eta, u, h, du, d2u)
         except (ValueError, ArithmeticError, DomainError, StepFailure) as exc:
-            self.log_error(f"{self.model_identifier}: doStep from t = {t:.9g} s over h = {h:.6g} s with u = {u!r} "
-                           f"failed: {exc}. The state is left at t = {t:.9g} s.")
+            held = "" if du == d2u == 0.0 else f" + {du!r} tau + {d2u!r} tau^2/2"
+            self.log_error(f"{self.model_identifier}: doStep from t = {t:.9g} s over h = {h:.6g} s with u = {u!r}"
+                           f"{held} failed: {exc}. The state is left at t = {t:.9g} s.")
             return False
         self._H = None
+        self.u_end = (u + h * (du + 0.5 * h * d2u), du + h * d2u)
         return True
 
     # ---- FMU state ----------------------------------------------------------------------------
     def save_internal(self) -> dict:
         if self.stepper is None:
             return {}
-        return {"eta": list(self.eta), "h_next": self.stepper.h_next}
+        return {"eta": list(self.eta), "h_next": self.stepper.h_next,
+                "u_end": None if self.u_end is None else list(self.u_end)}
 
     def restore_internal(self, internal: dict) -> None:
         if internal:
             self.eta = tuple(internal["eta"])
             self.stepper.h_next = internal["h_next"]
+            self.u_end = None if internal["u_end"] is None else tuple(internal["u_end"])
+            self._keep_u_end = True          # _set_fmu_state calls inputs_changed right after this: not a set of u
         self._H = None
+
+    # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
+    def input_rates(self) -> tuple[float, float]:
+        """(u', u'') the master set for the current communication point (0 where none was set)."""
+        d = self.input_derivatives.get("u")
+        return (0.0, 0.0) if not d else (d.get(1, 0.0), d.get(2, 0.0))
+
+    def inputs_changed(self) -> None:
+        """The master set u: from now on it (and the rate it sets) is the input at the current time."""
+        if self._keep_u_end:
+            self._keep_u_end = False
+        else:
+            self.u_end = None
+
+    def output_derivative(self, name: str, order: int) -> float:
+        """d^order/dt^order of q, p, x_e or H at the current communication point: eta' = f(eta, u),
+        eta'' = F hess H eta' + g u' (components: PlantStepper.time_derivatives)."""
+        u, du = self.u_end if self.u_end is not None else (self.values["u"], self.input_rates()[0])
+        key = (self.state(), u, du)
+        if self._rates is None or self._rates[0] != key:
+            stepper = self.stepper if self.stepper is not None else PlantStepper(self.make_plant(), self.values["rtol"])
+            self._rates = (key, stepper.time_derivatives(*key[0], u, du))
+        first, second, H1, H2 = self._rates[1]
+        if name == "H":
+            return H1 if order == 1 else H2
+        return (first if order == 1 else second)[STATE_NAMES.index(name)]

@@ -3,6 +3,8 @@
 Integer parameter kind selects the generator (0 constant, 1 sinusoid, 2 smooth_step); every parameter
 of the three generators is a parameter of the FMU (names from their PARAMETERS). The outputs are the
 reference jet (q*, q*', q*'', q*''') at the current communication point; they depend on no input.
+Output derivatives of order k (fmi2GetRealOutputDerivatives, k <= 3) are analytic: q_star of order k is
+q*^(k), q_star_dddot of order k is q*^(3+k) (components.references.Reference.derivatives).
 """
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ OUTPUTS = REFERENCE_JET
 
 
 class ReferenceSlave(EMSlave):
+    max_output_derivative_order = 3                             # FMI 2.0 derivatives (hook at the end)
+
     def declare(self) -> None:
         self.parameter("kind", 1, None, "reference generator: " + ", ".join(
             f"{code} {name} ({references.KINDS[name].name})" for code, name in KIND_CODES.items()), integer=True)
@@ -47,3 +51,10 @@ class ReferenceSlave(EMSlave):
 
     def step(self, t: float, h: float) -> bool:
         return True
+
+    # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
+    def output_derivative(self, name: str, order: int) -> float:
+        """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order)."""
+        k = [n for n, _, _ in OUTPUTS].index(name) + order
+        reference = self.reference if self.reference is not None else self.make_reference()
+        return reference.derivatives(self.time, k)[k]

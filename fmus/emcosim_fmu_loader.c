@@ -3,7 +3,9 @@
  * pythonfmu 0.7.0's export library (shipped beside this file as libpythonfmu-export.so) runs the FMU's
  * Python slave, but it expects a host that already has Python: its Python C-API symbols are undefined,
  * so a plain C host fails at dlopen, and a host that preloads libpython still has to point Python at
- * numpy and scipy. It also answers "not supported" to the three derivative functions. This loader:
+ * numpy and scipy. It answers "not supported" to the three derivative functions, turns every Python
+ * exception into fmi2Fatal (releasing the slave once too often: two failed calls and the host crashes),
+ * returns fmi2OK for whatever a setter refuses, and forwards log messages only with loggingOn. This loader:
  *
  *  1. Python. If the process has a running Python (fmpy, libcosimpy: dlsym(RTLD_DEFAULT,
  *     "Py_IsInitialized")), that one is used, as by pythonfmu alone. Otherwise fmi2Instantiate loads the
@@ -15,9 +17,15 @@
  *  2. Checks, before pythonfmu's code runs: numpy and scipy import, and no module of this FMU's names (its
  *     bundle package emcosim_fmu_<tag>, its script) is already loaded from another build: fmi2Instantiate
  *     refuses a clash with one message.
- *  3. Forwards every fmi2 function to pythonfmu's library, and answers fmi2SetRealInputDerivatives,
- *     fmi2GetRealOutputDerivatives and fmi2GetDirectionalDerivative by calling the framework's methods
- *     (em_fmu_framework.EMSlave.fmi2_*) on the instance's Python slave, with the GIL held.
+ *  3. Creates the instance with pythonfmu's library, then answers every FMI call of an emcosim slave
+ *     itself by calling the framework's fmi2_* methods (em_fmu_framework.EMSlave) with the GIL held: they
+ *     return (status, ..., message) and never raise, so a bad argument or a call in the wrong state gets
+ *     fmi2Error with a message, FMU states are checked before use, and the three derivative functions
+ *     are answered. Only fmi2Instantiate, fmi2Reset and fmi2FreeInstance go to pythonfmu's library (and
+ *     every call of a slave that is not an emcosim one, e.g. the benchmark's floor).
+ *  4. Keeps a registry of its live instances and of the FMU states they gave out: a call with a NULL,
+ *     unknown or freed instance (a second fmi2FreeInstance) or state is refused, not followed.
+ *  5. Logs through the host's logger: warnings and errors always, other messages with loggingOn.
  *
  * The interpreter the loader starts is never finalized: Py_Finalize at process exit is what crashed C
  * hosts before (docs/reliability.md, finding 1), other FMUs of the process may still use it, and numpy
@@ -49,12 +57,13 @@
 #define PY_FUNCTIONS(X)                                                                                   \
     X(Py_IsInitialized) X(Py_GetVersion) X(PyConfig_InitIsolatedConfig) X(PyConfig_SetBytesString)        \
     X(PyConfig_Clear) X(Py_InitializeFromConfig) X(PyStatus_Exception) X(PyEval_SaveThread)               \
-    X(PyGILState_Ensure) X(PyGILState_Release) X(PyImport_ImportModule) X(PyObject_GetAttrString)         \
-    X(PyObject_CallFunctionObjArgs) X(PyObject_Str) X(PyErr_Fetch) X(PyErr_Occurred) X(Py_DecRef)         \
-    X(PyList_New) X(PyList_SetItem) X(PyList_Size) X(PyList_GetItem)                     \
-    X(PyTuple_Size) X(PyTuple_GetItem) X(PyLong_FromLong)       \
+    X(PyGILState_Ensure) X(PyGILState_Release) X(PyImport_ImportModule) X(PyImport_GetModule)             \
+    X(PyObject_GetAttrString) X(PyObject_CallFunctionObjArgs) X(PyObject_Str) X(Py_IncRef) X(Py_DecRef)   \
+    X(PyErr_Fetch) X(PyErr_Occurred) X(PyErr_Clear) X(PyList_New) X(PyList_SetItem) X(PyList_Size)        \
+    X(PyList_GetItem) X(PyList_SetSlice) X(PyTuple_Size) X(PyTuple_GetItem) X(PyLong_FromLong)            \
     X(PyLong_FromUnsignedLong) X(PyLong_AsLong) X(PyFloat_FromDouble) X(PyFloat_AsDouble)                 \
-    X(PyUnicode_FromString) X(PyUnicode_AsUTF8) X(PyImport_GetModule)
+    X(PyUnicode_FromString) X(PyUnicode_AsUTF8) X(PyBytes_FromStringAndSize) X(PyBytes_Size)              \
+    X(PyBytes_AsString)
 
 static struct {
 #define DECLARE(name) __typeof__(&name) name;
@@ -95,12 +104,26 @@ static pthread_mutex_t setup_lock = PTHREAD_MUTEX_INITIALIZER;
 static int setup_done;                       /* Python and pythonfmu's library are ready */
 static char setup_error[MESSAGE_SIZE];       /* or why not (then every fmi2Instantiate reports it) */
 
+typedef struct {                             /* the value references of the last call, as a Python list */
+    fmi2ValueReference *vr;
+    size_t n;
+    PyObject *list;
+} VrCache;
+
 typedef struct {
     fmi2Component inner;                     /* pythonfmu's instance */
-    PyObject *slave;                         /* the EMSlave (a strong reference), or NULL */
-    fmi2CallbackFunctions callbacks;         /* the host's, copied: pythonfmu keeps a pointer to them */
     char *name;
     char package[128];                       /* the bundle package (em_fmu_framework is found there) */
+    fmi2CallbackFunctions host;              /* the host's callbacks, copied */
+    fmi2CallbackFunctions callbacks;         /* given to pythonfmu: its messages go through `relay` */
+    int logging_on;                          /* the host's loggingOn (fmi2Instantiate, fmi2SetDebugLogging) */
+    int failed;                              /* fmi2Reset failed: only fmi2FreeInstance is left */
+    PyObject *slave;                         /* the EMSlave (a strong reference), or NULL: forward all */
+    PyObject *log_queue;                     /* slave.log_queue, drained after every call */
+    PyObject *set_real, *get_real, *do_step; /* the slave's methods of every communication step */
+    VrCache set_vrs, get_vrs;
+    PyObject **states;                       /* the FMU states this instance gave out (strong references) */
+    size_t n_states, cap_states;
 } Instance;
 
 typedef struct {
@@ -112,35 +135,70 @@ typedef struct {
     char script[160];                        /* the script pythonfmu runs, emcosim_fmu_<tag>_<id> */
     char build[80];                          /* the build fingerprint (the package's BUILD) */
     char multiarch[64];                      /* lib/<multiarch> of a Debian-style libpython */
+    char guid[64];                           /* the modelDescription's guid */
 } Record;
 
 /* ---- logging through the host's callback ------------------------------------------------------------ */
-static const char *category(fmi2Status status)
+static const char *category_of(fmi2Status status)
 {
     static const char *names[] = {"logStatusOK", "logStatusWarning", "logStatusDiscard", "logStatusError",
                                   "logStatusFatal", "logStatusPending"};
     return status <= fmi2Pending ? names[status] : "logAll";
 }
 
-static void log_to_host(const fmi2CallbackFunctions *callbacks, const char *instance, fmi2Status status,
-                        const char *format, ...)
+/* The logger's message is a printf format (FMI 2.0): '%' is doubled; hosts that do not format it (fmpy)
+ * show it as it is. Without a logger: stderr. */
+static void log_text(const fmi2CallbackFunctions *callbacks, const char *instance, fmi2Status status,
+                     const char *category, const char *text)
 {
-    char message[MESSAGE_SIZE], escaped[2 * MESSAGE_SIZE];
-    va_list args;
-    va_start(args, format);
-    vsnprintf(message, sizeof message, format, args);
-    va_end(args);
-    /* the logger's message is a printf format (FMI 2.0); hosts that do not format it (fmpy) show it as is */
+    char escaped[2 * MESSAGE_SIZE];
     size_t n = 0;
-    for (const char *p = message; *p; p++) {
+    for (const char *p = text; *p && n + 2 < sizeof escaped; p++) {
         if (*p == '%') escaped[n++] = '%';
         escaped[n++] = *p;
     }
     escaped[n] = '\0';
     if (callbacks != NULL && callbacks->logger != NULL)
-        callbacks->logger(callbacks->componentEnvironment, instance ? instance : "", status, category(status), escaped);
+        callbacks->logger(callbacks->componentEnvironment, instance ? instance : "", status,
+                          category && category[0] ? category : category_of(status), escaped);
     else
-        fprintf(stderr, "[%s] %s\n", instance ? instance : "", message);
+        fprintf(stderr, "[%s] %s\n", instance ? instance : "", text);
+}
+
+static void log_to_host(const fmi2CallbackFunctions *callbacks, const char *instance, fmi2Status status,
+                        const char *format, ...)
+{
+    char message[MESSAGE_SIZE];
+    va_list args;
+    va_start(args, format);
+    vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    log_text(callbacks, instance, status, NULL, message);
+}
+
+/* A message of an instance: warnings and worse always, the rest only with loggingOn. */
+static void emit(Instance *instance, fmi2Status status, const char *category, const char *text)
+{
+    if (status >= fmi2Warning || instance->logging_on)
+        log_text(&instance->host, instance->name, status, category, text);
+}
+
+static void emitf(Instance *instance, fmi2Status status, const char *format, ...)
+{
+    char message[MESSAGE_SIZE];
+    va_list args;
+    va_start(args, format);
+    vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    emit(instance, status, NULL, message);
+}
+
+/* pythonfmu's logger callback: its messages are plain text (no format arguments). */
+static void relay(fmi2ComponentEnvironment environment, fmi2String name, fmi2Status status, fmi2String category,
+                  fmi2String message, ...)
+{
+    (void)name;
+    emit((Instance *)environment, status, category, message ? message : "");
 }
 
 /* ---- the record of build.py ------------------------------------------------------------------------ */
@@ -175,6 +233,7 @@ static int read_record(const char *resources, Record *record, char *error)
         else if (strcmp(key, "script") == 0) copy_string(record->script, sizeof record->script, value);
         else if (strcmp(key, "build") == 0) copy_string(record->build, sizeof record->build, value);
         else if (strcmp(key, "multiarch") == 0) copy_string(record->multiarch, sizeof record->multiarch, value);
+        else if (strcmp(key, "guid") == 0) copy_string(record->guid, sizeof record->guid, value);
     }
     fclose(f);
     int major = 0, minor = 0;
@@ -502,106 +561,237 @@ static int set_up(const Record *record, const char *resources, char *error)
     return check_environment(record, resources, started, error);
 }
 
-/* ---- the Python slave of an instance ------------------------------------------------------------------ */
-/* The EMSlave pythonfmu constructed last on this thread (em_fmu_framework.take_new_slave). GIL held. */
-static PyObject *take_slave(const char *package)
+/* ---- the registry of live instances (per FMU binary) -------------------------------------------------- */
+static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
+static Instance **live;
+static size_t n_live, cap_live;
+
+static int grow(void **array, size_t *capacity, size_t needed, size_t item)
 {
-    char module[256];
-    snprintf(module, sizeof module, "%s.em_fmu_framework", package);
+    if (needed <= *capacity) return 0;
+    size_t capacity2 = *capacity ? 2 * *capacity : 8;
+    void *array2 = realloc(*array, capacity2 * item);
+    if (array2 == NULL) return -1;
+    *array = array2;
+    *capacity = capacity2;
+    return 0;
+}
+
+static int register_instance(Instance *instance)
+{
+    pthread_mutex_lock(&registry_lock);
+    int failed = grow((void **)&live, &cap_live, n_live + 1, sizeof *live);
+    if (!failed) live[n_live++] = instance;
+    pthread_mutex_unlock(&registry_lock);
+    return failed ? -1 : 0;
+}
+
+static void unregister_instance(Instance *instance)
+{
+    pthread_mutex_lock(&registry_lock);
+    for (size_t i = 0; i < n_live; i++)
+        if (live[i] == instance) {
+            live[i] = live[--n_live];
+            break;
+        }
+    pthread_mutex_unlock(&registry_lock);
+}
+
+/* The live instance `c`, or NULL (a NULL, unknown or freed instance: said on stderr, the host's logger is
+ * not known). An instance whose fmi2Reset failed answers fmi2Error to everything but fmi2FreeInstance. */
+static Instance *lookup(fmi2Component c, const char *function)
+{
+    Instance *found = NULL;
+    pthread_mutex_lock(&registry_lock);
+    for (size_t i = 0; i < n_live && found == NULL; i++)
+        if (live[i] == (Instance *)c) found = live[i];
+    pthread_mutex_unlock(&registry_lock);
+    if (found == NULL)
+        fprintf(stderr, "emcosim FMU: %s called with %s instance (%p); refused\n", function,
+                c == NULL ? "a NULL" : "an unknown or freed", c);
+    else if (found->failed && strcmp(function, "fmi2FreeInstance") != 0) {
+        emitf(found, fmi2Error, "%s: this instance failed in fmi2Reset; only fmi2FreeInstance is possible", function);
+        return NULL;
+    }
+    return found;
+}
+
+/* Is `state` one the instances of this FMU gave out (and did not free)? Its owner, or NULL. */
+static Instance *owner_of(fmi2FMUstate state, size_t *index)
+{
+    Instance *owner = NULL;
+    pthread_mutex_lock(&registry_lock);
+    for (size_t i = 0; i < n_live && owner == NULL; i++)
+        for (size_t j = 0; j < live[i]->n_states; j++)
+            if (live[i]->states[j] == (PyObject *)state) {
+                owner = live[i];
+                *index = j;
+                break;
+            }
+    pthread_mutex_unlock(&registry_lock);
+    return owner;
+}
+
+static int add_state(Instance *instance, PyObject *state)
+{
+    pthread_mutex_lock(&registry_lock);
+    int failed = grow((void **)&instance->states, &instance->cap_states, instance->n_states + 1,
+                      sizeof *instance->states);
+    if (!failed) instance->states[instance->n_states++] = state;
+    pthread_mutex_unlock(&registry_lock);
+    return failed ? -1 : 0;
+}
+
+static void remove_state(Instance *owner, size_t index)
+{
+    pthread_mutex_lock(&registry_lock);
+    owner->states[index] = owner->states[--owner->n_states];
+    pthread_mutex_unlock(&registry_lock);
+}
+
+/* ---- the Python slave of an instance ------------------------------------------------------------------ */
+static void clear(PyObject **object)
+{
+    if (*object != NULL) py.Py_DecRef(*object);
+    *object = NULL;
+}
+
+static void clear_vrs(VrCache *cache)
+{
+    clear(&cache->list);
+    free(cache->vr);
+    cache->vr = NULL;
+    cache->n = 0;
+}
+
+/* The EMSlave pythonfmu constructed last on this thread (em_fmu_framework.take_new_slave), with the
+ * methods of every communication step and its log queue; none for a slave that is not an EMSlave (then
+ * every call goes to pythonfmu's library). GIL held. */
+static void take_slave(Instance *instance)
+{
+    char module[256], text[MESSAGE_SIZE];
+    PyObject **objects[] = {&instance->slave, &instance->log_queue, &instance->set_real, &instance->get_real,
+                            &instance->do_step};
+    for (int i = 0; i < 5; i++) clear(objects[i]);
+    clear_vrs(&instance->set_vrs);
+    clear_vrs(&instance->get_vrs);
+    snprintf(module, sizeof module, "%s.em_fmu_framework", instance->package);
     PyObject *framework = py.PyImport_ImportModule(module);
     PyObject *take = framework ? py.PyObject_GetAttrString(framework, "take_new_slave") : NULL;
     PyObject *slave = take ? py.PyObject_CallFunctionObjArgs(take, NULL) : NULL;
     if (framework) py.Py_DecRef(framework);
     if (take) py.Py_DecRef(take);
-    if (slave == NULL) {
-        char text[MESSAGE_SIZE];
+    if (slave == NULL) {                      /* a bundle without the framework: pythonfmu answers */
         python_error_text(text, sizeof text);
-        fprintf(stderr, "emcosim FMU loader: %s.take_new_slave failed: %s\n", module, text);
+        emitf(instance, fmi2Warning, "%s.take_new_slave failed (%s): pythonfmu answers every call", module, text);
+        return;
     }
-    return slave;
+    instance->slave = slave;                  /* None: a slave that is not an EMSlave */
+    instance->do_step = py.PyObject_GetAttrString(slave, "fmi2_do_step");
+    instance->log_queue = py.PyObject_GetAttrString(slave, "log_queue");
+    instance->set_real = py.PyObject_GetAttrString(slave, "fmi2_set_real");
+    instance->get_real = py.PyObject_GetAttrString(slave, "fmi2_get_real");
+    if (!instance->do_step || !instance->log_queue || !instance->set_real || !instance->get_real)
+        for (int i = 0; i < 5; i++) clear(objects[i]);
+    py.PyErr_Clear();
 }
 
-static Instance *instance_of(fmi2Component c)
+/* Forward the slave's log messages (LogMsg: status, category, msg) to the host, then empty the queue;
+ * how many there were. */
+static Py_ssize_t drain(Instance *instance)
 {
-    return (Instance *)c;
+    Py_ssize_t n = instance->log_queue ? py.PyList_Size(instance->log_queue) : 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *entry = py.PyList_GetItem(instance->log_queue, i);
+        PyObject *status = py.PyObject_GetAttrString(entry, "status");
+        PyObject *category = py.PyObject_GetAttrString(entry, "category");
+        PyObject *text = py.PyObject_GetAttrString(entry, "msg");
+        long code = status ? py.PyLong_AsLong(status) : fmi2Error;
+        const char *c = category ? py.PyUnicode_AsUTF8(category) : NULL;
+        const char *t = text ? py.PyUnicode_AsUTF8(text) : NULL;
+        py.PyErr_Clear();                                   /* a category None: no string */
+        emit(instance, code >= fmi2OK && code <= fmi2Fatal ? (fmi2Status)code : fmi2Error, c, t ? t : "(no message)");
+        PyObject *objects[] = {status, category, text};
+        for (int k = 0; k < 3; k++)
+            if (objects[k]) py.Py_DecRef(objects[k]);
+    }
+    if (n > 0) py.PyList_SetSlice(instance->log_queue, 0, n, NULL);
+    py.PyErr_Clear();
+    return n;
 }
 
-/* ---- FMI functions ------------------------------------------------------------------------------------ */
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+typedef struct {
+    fmi2Status status;
+    PyObject *value;                          /* the middle item of a 3-tuple answer (new reference), or NULL */
+} Answer;
 
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
-                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
-                              fmi2Boolean visible, fmi2Boolean loggingOn)
+/* Call the slave's method (`bound`, else looked up by `method`) with the arguments (up to 5, consumed;
+ * NULL from a failed allocation fails the call). It answers (status, message) or, with `items` = 3,
+ * (status, value, message). The message is logged with the status, then what the slave logged during
+ * the call (the details, last: hosts that keep one message keep those), else a generic one for a failure.
+ * GIL held. */
+static Answer ask(Instance *instance, const char *function, PyObject *bound, const char *method,
+                  PyObject *args[], int nargs, int items)
 {
-    char resources[PATH_MAX], uri[PATH_MAX + 16], error[MESSAGE_SIZE];
-    Record record;
-    if (functions == NULL || instanceName == NULL) {
-        log_to_host(functions, instanceName, fmi2Error, "fmi2Instantiate: instanceName and functions must not be NULL");
-        return NULL;
+    char text[MESSAGE_SIZE];
+    Answer answer = {fmi2Error, NULL};
+    PyObject *a[5] = {NULL, NULL, NULL, NULL, NULL};
+    int complete = 1;
+    for (int i = 0; i < nargs; i++) {
+        a[i] = args[i];
+        complete = complete && args[i] != NULL;
     }
-    if (fmuResourceLocation == NULL || uri_to_path(fmuResourceLocation, resources, sizeof resources) != 0) {
-        log_to_host(functions, instanceName, fmi2Error, "fmi2Instantiate: fmuResourceLocation %s is not a file: URI "
-                    "of the FMU's resources folder", fmuResourceLocation ? fmuResourceLocation : "(NULL)");
-        return NULL;
+    PyObject *callable = bound;
+    if (callable != NULL) py.Py_IncRef(callable);
+    else callable = py.PyObject_GetAttrString(instance->slave, method);
+    PyObject *result = callable && complete ? py.PyObject_CallFunctionObjArgs(callable, a[0], a[1], a[2], a[3], a[4], NULL) : NULL;
+    const char *message = NULL;
+    if (result != NULL && py.PyTuple_Size(result) == items) {
+        long code = py.PyLong_AsLong(py.PyTuple_GetItem(result, 0));
+        answer.status = code >= fmi2OK && code <= fmi2Fatal ? (fmi2Status)code : fmi2Error;
+        message = py.PyUnicode_AsUTF8(py.PyTuple_GetItem(result, items - 1));
+        if (items == 3) {
+            answer.value = py.PyTuple_GetItem(result, 1);
+            py.Py_IncRef(answer.value);
+        }
     }
-    if (read_record(resources, &record, error) != 0 || set_up(&record, resources, error) != 0) {
-        log_to_host(functions, instanceName, fmi2Error, "fmi2Instantiate: %s", error);
-        return NULL;
+    if (message == NULL) {
+        if (py.PyErr_Occurred()) python_error_text(text, sizeof text);
+        else snprintf(text, sizeof text, "%s did not answer (status, %smessage)", method ? method : function,
+                      items == 3 ? "value, " : "");
+        answer.status = fmi2Error;
+        clear(&answer.value);
     }
-    Instance *instance = calloc(1, sizeof *instance);
-    if (instance == NULL || (instance->name = strdup(instanceName)) == NULL) {
-        free(instance);
-        log_to_host(functions, instanceName, fmi2Error, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
-    instance->callbacks = *functions;
-    copy_string(instance->package, sizeof instance->package, record.package);
-    snprintf(uri, sizeof uri, "file://%s", resources);       /* decoded: pythonfmu only decodes %20 */
-    instance->inner = lib.fmi2Instantiate(instanceName, fmuType, fmuGUID, uri, &instance->callbacks, visible, loggingOn);
-    if (instance->inner == NULL) {
-        free(instance->name);
-        free(instance);
-        return NULL;
-    }
-    PyGILState_STATE gil = py.PyGILState_Ensure();
-    instance->slave = take_slave(record.package);
-    py.PyGILState_Release(gil);
-    return instance;
+    if (message == NULL) emitf(instance, fmi2Error, "%s: %s", function, text);
+    else if (message[0]) emit(instance, answer.status, NULL, message);
+    if (drain(instance) == 0 && message != NULL && !message[0] && answer.status > fmi2Warning)
+        emitf(instance, answer.status, "%s failed", function);
+    if (callable) py.Py_DecRef(callable);
+    if (result) py.Py_DecRef(result);
+    for (int i = 0; i < nargs; i++)
+        if (args[i]) py.Py_DecRef(args[i]);
+    return answer;
 }
 
-void fmi2FreeInstance(fmi2Component c)
-{
-    Instance *instance = instance_of(c);
-    if (instance == NULL) return;
-    lib.fmi2FreeInstance(instance->inner);
-    if (instance->slave != NULL) {
-        PyGILState_STATE gil = py.PyGILState_Ensure();
-        py.Py_DecRef(instance->slave);
-        py.PyGILState_Release(gil);
-    }
-    free(instance->name);
-    free(instance);
-}
-
-fmi2Status fmi2Reset(fmi2Component c)
-{
-    Instance *instance = instance_of(c);
-    fmi2Status status = lib.fmi2Reset(instance->inner);       /* pythonfmu creates a new Python slave */
-    PyGILState_STATE gil = py.PyGILState_Ensure();
-    if (instance->slave != NULL) py.Py_DecRef(instance->slave);
-    instance->slave = take_slave(instance->package);
-    py.PyGILState_Release(gil);
-    return status;
-}
-
-/* ---- derivatives: the framework's fmi2_* methods ---------------------------------------------------- */
 static PyObject *list_of_vrs(const fmi2ValueReference *vr, size_t n)
 {
     PyObject *list = py.PyList_New((Py_ssize_t)n);
     for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyLong_FromUnsignedLong(vr[i]));
     return list;
+}
+
+/* The same list again while the host passes the same value references (every step, usually). */
+static PyObject *cached_vrs(VrCache *cache, const fmi2ValueReference *vr, size_t n)
+{
+    if (cache->list == NULL || cache->n != n || (n > 0 && memcmp(cache->vr, vr, n * sizeof *vr) != 0)) {
+        clear_vrs(cache);
+        if ((cache->vr = malloc((n ? n : 1) * sizeof *vr)) == NULL) return NULL;
+        memcpy(cache->vr, vr, n * sizeof *vr);
+        cache->n = n;
+        cache->list = list_of_vrs(vr, n);
+    }
+    if (cache->list) py.Py_IncRef(cache->list);
+    return cache->list;
 }
 
 static PyObject *list_of_ints(const fmi2Integer *v, size_t n)
@@ -618,87 +808,466 @@ static PyObject *list_of_reals(const fmi2Real *v, size_t n)
     return list;
 }
 
-/* Call slave.<method>(*args) -> (status, message), or (status, values, message) when `out` is given: copy
- * the n values into out, log the message with the status. Releases the arguments. GIL held. */
-static fmi2Status call_slave(Instance *instance, const char *function, const char *method, PyObject *args[3],
-                             fmi2Real *out, size_t n)
+/* Copy a list answer of n values (also with an error status: the values are defined, e.g. NaN). */
+static fmi2Status copy_values(Instance *instance, const char *function, Answer answer, fmi2Real *reals,
+                              fmi2Integer *ints, size_t n)
 {
-    char text[MESSAGE_SIZE];
-    fmi2Status status = fmi2Error;
-    int nargs = args[2] ? 3 : 2;
-    PyObject *bound = NULL, *result = NULL;
-    if (instance->slave == NULL) {
-        log_to_host(&instance->callbacks, instance->name, fmi2Error, "%s: the Python slave of this instance is not "
-                    "known (see the message of fmi2Instantiate)", function);
-        goto done;
+    if (answer.value != NULL && py.PyList_Size(answer.value) == (Py_ssize_t)n) {
+        for (size_t i = 0; i < n; i++) {
+            PyObject *item = py.PyList_GetItem(answer.value, (Py_ssize_t)i);
+            if (reals) reals[i] = py.PyFloat_AsDouble(item);
+            else ints[i] = (fmi2Integer)py.PyLong_AsLong(item);
+        }
+    } else if (answer.status <= fmi2Warning) {
+        emitf(instance, fmi2Error, "%s: the slave answered a wrong number of values", function);
+        answer.status = fmi2Error;
     }
-    if (args[0] && args[1] && (bound = py.PyObject_GetAttrString(instance->slave, method)) != NULL)
-        result = py.PyObject_CallFunctionObjArgs(bound, args[0], args[1], args[2], NULL);
-    Py_ssize_t size = result ? py.PyTuple_Size(result) : -1;
-    if (size != (out ? 3 : 2)) {
-        if (result == NULL || py.PyErr_Occurred()) python_error_text(text, sizeof text);
-        else snprintf(text, sizeof text, "%s returned no tuple of %d items", method, out ? 3 : 2);
-        log_to_host(&instance->callbacks, instance->name, fmi2Error, "%s: %s", function, text);
-        goto done;
+    py.PyErr_Clear();
+    clear(&answer.value);
+    return answer.status;
+}
+
+/* ---- FMI functions: creation and destruction ------------------------------------------------------- */
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                              fmi2Boolean visible, fmi2Boolean loggingOn)
+{
+    char resources[PATH_MAX], uri[PATH_MAX + 16], error[MESSAGE_SIZE];
+    Record record;
+    const char *name = instanceName ? instanceName : "";
+    if (instanceName == NULL || instanceName[0] == '\0' || functions == NULL) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: instanceName must be a non-empty string and "
+                    "functions must not be NULL");
+        return NULL;
     }
-    long code = py.PyLong_AsLong(py.PyTuple_GetItem(result, 0));
-    const char *message = py.PyUnicode_AsUTF8(py.PyTuple_GetItem(result, size - 1));
-    status = code >= fmi2OK && code <= fmi2Fatal ? (fmi2Status)code : fmi2Error;
-    if (out && status <= fmi2Warning) {
-        PyObject *values = py.PyTuple_GetItem(result, 1);
-        if (py.PyList_Size(values) != (Py_ssize_t)n) {
-            status = fmi2Error;
-            message = "the slave returned a wrong number of values";
-        } else {
-            for (size_t i = 0; i < n; i++) out[i] = py.PyFloat_AsDouble(py.PyList_GetItem(values, (Py_ssize_t)i));
+    if (fmuType != fmi2CoSimulation) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: this FMU is for Co-Simulation only "
+                    "(fmuType %d)", (int)fmuType);
+        return NULL;
+    }
+    if (fmuResourceLocation == NULL || uri_to_path(fmuResourceLocation, resources, sizeof resources) != 0) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: fmuResourceLocation %s is not a file: URI "
+                    "of the FMU's resources folder", fmuResourceLocation ? fmuResourceLocation : "(NULL)");
+        return NULL;
+    }
+    if (read_record(resources, &record, error) != 0) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: %s", error);
+        return NULL;
+    }
+    if (fmuGUID != NULL && fmuGUID[0] != '\0' && record.guid[0] && strcmp(fmuGUID, record.guid) != 0) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: GUID %s is not this FMU's (%s): the "
+                    "modelDescription.xml read is not this binary's", fmuGUID, record.guid);
+        return NULL;
+    }
+    if (set_up(&record, resources, error) != 0) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: %s", error);
+        return NULL;
+    }
+    Instance *instance = calloc(1, sizeof *instance);
+    if (instance == NULL || (instance->name = strdup(instanceName)) == NULL) {
+        free(instance);
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    instance->host = *functions;
+    instance->callbacks = *functions;
+    instance->callbacks.logger = relay;
+    instance->callbacks.componentEnvironment = instance;
+    instance->logging_on = loggingOn == fmi2True;
+    copy_string(instance->package, sizeof instance->package, record.package);
+    snprintf(uri, sizeof uri, "file://%s", resources);       /* decoded: pythonfmu only decodes %20 */
+    /* pythonfmu logs only with loggingOn: it gets fmi2True and `relay` filters */
+    instance->inner = lib.fmi2Instantiate(instanceName, fmuType, fmuGUID, uri, &instance->callbacks, visible, fmi2True);
+    if (instance->inner == NULL) {
+        free(instance->name);
+        free(instance);
+        return NULL;
+    }
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    take_slave(instance);
+    py.PyGILState_Release(gil);
+    if (register_instance(instance) != 0) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: out of memory");
+        lib.fmi2FreeInstance(instance->inner);
+        return NULL;
+    }
+    return instance;
+}
+
+void fmi2FreeInstance(fmi2Component c)
+{
+    Instance *instance = lookup(c, "fmi2FreeInstance");
+    if (instance == NULL) return;                       /* e.g. freed before: nothing to do, nothing touched */
+    unregister_instance(instance);
+    lib.fmi2FreeInstance(instance->inner);
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject **objects[] = {&instance->slave, &instance->log_queue, &instance->set_real, &instance->get_real,
+                            &instance->do_step};
+    for (int i = 0; i < 5; i++) clear(objects[i]);
+    clear_vrs(&instance->set_vrs);
+    clear_vrs(&instance->get_vrs);
+    for (size_t i = 0; i < instance->n_states; i++) py.Py_DecRef(instance->states[i]);   /* freed with it */
+    py.PyGILState_Release(gil);
+    free(instance->states);
+    free(instance->name);
+    free(instance);
+}
+
+fmi2Status fmi2Reset(fmi2Component c)
+{
+    Instance *instance = lookup(c, "fmi2Reset");
+    if (instance == NULL) return fmi2Error;
+    fmi2Status status = lib.fmi2Reset(instance->inner);       /* pythonfmu creates a new Python slave */
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    take_slave(instance);
+    py.PyGILState_Release(gil);
+    if (status > fmi2Warning) instance->failed = 1;
+    return status;
+}
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories, const fmi2String categories[])
+{
+    static const char *known[] = {"logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal",
+                                  "logAll"};
+    Instance *instance = lookup(c, "fmi2SetDebugLogging");
+    if (instance == NULL) return fmi2Error;
+    for (size_t i = 0; i < nCategories; i++) {
+        int found = 0;
+        for (int k = 0; categories != NULL && categories[i] != NULL && k < 5; k++) found = found || !strcmp(categories[i], known[k]);
+        if (!found) {
+            emitf(instance, fmi2Error, "fmi2SetDebugLogging: %s is not a log category of this FMU (logStatusWarning, "
+                  "logStatusDiscard, logStatusError, logStatusFatal, logAll)",
+                  categories && categories[i] ? categories[i] : "(NULL)");
+            return fmi2Error;
         }
     }
-    if (py.PyErr_Occurred()) {
-        python_error_text(text, sizeof text);
-        status = fmi2Error;
-        message = text;
+    instance->logging_on = loggingOn == fmi2True;   /* categories: every message goes to the host when on */
+    return fmi2OK;
+}
+
+/* ---- FMI functions answered through the framework --------------------------------------------------- */
+/* The instance for an FMI call, or return fmi2Error; a slave that is not an emcosim one: `forward`. */
+#define BEGIN(function, forward)                                                                          \
+    Instance *instance = lookup(c, #function);                                                            \
+    if (instance == NULL) return fmi2Error;                                                               \
+    if (instance->slave == NULL) return forward;
+
+#define NULL_ARRAYS(function, condition)                                                                  \
+    if (condition) {                                                                                      \
+        emitf(instance, fmi2Error, "%s: NULL array or pointer argument", #function);                       \
+        return fmi2Error;                                                                                 \
     }
-    if (message != NULL && message[0])
-        log_to_host(&instance->callbacks, instance->name, status, "%s", message);
-    else if (status > fmi2Warning)
-        log_to_host(&instance->callbacks, instance->name, status, "%s failed", function);
-done:
-    if (py.PyErr_Occurred()) python_error_text(text, sizeof text);
-    if (bound) py.Py_DecRef(bound);
-    if (result) py.Py_DecRef(result);
-    for (int i = 0; i < nargs; i++)
-        if (args[i]) py.Py_DecRef(args[i]);
+
+static fmi2Status ask_status(Instance *instance, const char *function, PyObject *bound, const char *method,
+                             PyObject *args[], int nargs)
+{
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    Answer answer = ask(instance, function, bound, method, args, nargs, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance, fmi2Real startTime,
+                               fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+{
+    BEGIN(fmi2SetupExperiment, lib.fmi2SetupExperiment(instance->inner, toleranceDefined, tolerance, startTime,
+                                                       stopTimeDefined, stopTime))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[5] = {py.PyLong_FromLong(toleranceDefined), py.PyFloat_FromDouble(tolerance),
+                         py.PyFloat_FromDouble(startTime), py.PyLong_FromLong(stopTimeDefined),
+                         py.PyFloat_FromDouble(stopTime)};
+    Answer answer = ask(instance, "fmi2SetupExperiment", NULL, "fmi2_setup_experiment", args, 5, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c)
+{
+    BEGIN(fmi2EnterInitializationMode, lib.fmi2EnterInitializationMode(instance->inner))
+    return ask_status(instance, "fmi2EnterInitializationMode", NULL, "fmi2_enter_initialization_mode", NULL, 0);
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    BEGIN(fmi2ExitInitializationMode, lib.fmi2ExitInitializationMode(instance->inner))
+    return ask_status(instance, "fmi2ExitInitializationMode", NULL, "fmi2_exit_initialization_mode", NULL, 0);
+}
+
+fmi2Status fmi2Terminate(fmi2Component c)
+{
+    BEGIN(fmi2Terminate, lib.fmi2Terminate(instance->inner))
+    return ask_status(instance, "fmi2Terminate", NULL, "fmi2_terminate", NULL, 0);
+}
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint)
+{
+    BEGIN(fmi2DoStep, lib.fmi2DoStep(instance->inner, currentCommunicationPoint, communicationStepSize,
+                                     noSetFMUStatePriorToCurrentPoint))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[2] = {py.PyFloat_FromDouble(currentCommunicationPoint), py.PyFloat_FromDouble(communicationStepSize)};
+    Answer answer = ask(instance, "fmi2DoStep", instance->do_step, NULL, args, 2, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
+{
+    BEGIN(fmi2SetReal, lib.fmi2SetReal(instance->inner, vr, nvr, value))
+    NULL_ARRAYS(fmi2SetReal, nvr > 0 && (vr == NULL || value == NULL))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[2] = {cached_vrs(&instance->set_vrs, vr, nvr), list_of_reals(value, nvr)};
+    Answer answer = ask(instance, "fmi2SetReal", instance->set_real, NULL, args, 2, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
+{
+    BEGIN(fmi2GetReal, lib.fmi2GetReal(instance->inner, vr, nvr, value))
+    NULL_ARRAYS(fmi2GetReal, nvr > 0 && (vr == NULL || value == NULL))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {cached_vrs(&instance->get_vrs, vr, nvr)};
+    fmi2Status status = copy_values(instance, "fmi2GetReal",
+                                    ask(instance, "fmi2GetReal", instance->get_real, NULL, args, 1, 3), value, NULL, nvr);
+    py.PyGILState_Release(gil);
     return status;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
+{
+    BEGIN(fmi2SetInteger, lib.fmi2SetInteger(instance->inner, vr, nvr, value))
+    NULL_ARRAYS(fmi2SetInteger, nvr > 0 && (vr == NULL || value == NULL))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[2] = {list_of_vrs(vr, nvr), list_of_ints(value, nvr)};
+    Answer answer = ask(instance, "fmi2SetInteger", NULL, "fmi2_set_integer", args, 2, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
+{
+    BEGIN(fmi2GetInteger, lib.fmi2GetInteger(instance->inner, vr, nvr, value))
+    NULL_ARRAYS(fmi2GetInteger, nvr > 0 && (vr == NULL || value == NULL))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {list_of_vrs(vr, nvr)};
+    fmi2Status status = copy_values(instance, "fmi2GetInteger",
+                                    ask(instance, "fmi2GetInteger", NULL, "fmi2_get_integer", args, 1, 3), NULL, value, nvr);
+    py.PyGILState_Release(gil);
+    return status;
+}
+
+/* emcosim slaves have Real and Integer variables only. */
+static fmi2Status no_such_variables(Instance *instance, const char *function, const char *type,
+                                    const fmi2ValueReference vr[], size_t nvr)
+{
+    if (nvr == 0) return fmi2OK;
+    emitf(instance, fmi2Error, "%s: valueReference %u is not a %s variable (this FMU has none)", function,
+          vr ? vr[0] : 0u, type);
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
+{
+    BEGIN(fmi2GetBoolean, lib.fmi2GetBoolean(instance->inner, vr, nvr, value))
+    return no_such_variables(instance, "fmi2GetBoolean", "Boolean", vr, nvr);
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+{
+    BEGIN(fmi2GetString, lib.fmi2GetString(instance->inner, vr, nvr, value))
+    return no_such_variables(instance, "fmi2GetString", "String", vr, nvr);
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[])
+{
+    BEGIN(fmi2SetBoolean, lib.fmi2SetBoolean(instance->inner, vr, nvr, value))
+    return no_such_variables(instance, "fmi2SetBoolean", "Boolean", vr, nvr);
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
+{
+    BEGIN(fmi2SetString, lib.fmi2SetString(instance->inner, vr, nvr, value))
+    return no_such_variables(instance, "fmi2SetString", "String", vr, nvr);
+}
+
+/* ---- FMU states: Python objects of the framework, registered per instance ---------------------------- */
+/* A state `instance` gave out (registered), or NULL after logging why not. */
+static PyObject *known_state(Instance *instance, const char *function, fmi2FMUstate state, size_t *index,
+                             Instance **owner)
+{
+    size_t i = 0;
+    Instance *o = state ? owner_of(state, &i) : NULL;
+    if (o == NULL) {
+        emitf(instance, fmi2Error, "%s: %p is not a state this FMU gave out (fmi2GetFMUstate or "
+              "fmi2DeSerializeFMUstate), or it was freed", function, (void *)state);
+        return NULL;
+    }
+    if (index) *index = i;
+    if (owner) *owner = o;
+    return (PyObject *)state;
+}
+
+/* Register a new state (the answer's value) and hand it out; fmi2Error if the answer has none. */
+static fmi2Status give_state(Instance *instance, const char *function, Answer answer, fmi2FMUstate *state)
+{
+    if (answer.status <= fmi2Warning && answer.value != NULL && add_state(instance, answer.value) == 0) {
+        *state = (fmi2FMUstate)answer.value;
+        return answer.status;
+    }
+    if (answer.status <= fmi2Warning) emitf(instance, fmi2Error, "%s: no state", function);
+    clear(&answer.value);
+    return answer.status <= fmi2Warning ? fmi2Error : answer.status;
+}
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
+{
+    BEGIN(fmi2GetFMUstate, lib.fmi2GetFMUstate(instance->inner, state))
+    NULL_ARRAYS(fmi2GetFMUstate, state == NULL)
+    size_t index = 0;
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    if (*state != NULL && owner_of(*state, &index) == instance) {
+        remove_state(instance, index);                        /* FMI: a state passed in is overwritten */
+        py.Py_DecRef((PyObject *)*state);
+    }
+    fmi2Status status = give_state(instance, "fmi2GetFMUstate",
+                                   ask(instance, "fmi2GetFMUstate", NULL, "fmi2_get_fmu_state", NULL, 0, 3), state);
+    py.PyGILState_Release(gil);
+    return status;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
+{
+    BEGIN(fmi2SetFMUstate, lib.fmi2SetFMUstate(instance->inner, state))
+    PyObject *known = known_state(instance, "fmi2SetFMUstate", state, NULL, NULL);
+    if (known == NULL) return fmi2Error;
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    py.Py_IncRef(known);
+    PyObject *args[1] = {known};
+    Answer answer = ask(instance, "fmi2SetFMUstate", NULL, "fmi2_set_fmu_state", args, 1, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state)
+{
+    BEGIN(fmi2FreeFMUstate, lib.fmi2FreeFMUstate(instance->inner, state))
+    NULL_ARRAYS(fmi2FreeFMUstate, state == NULL)
+    if (*state == NULL) return fmi2OK;                        /* FMI: ignored */
+    size_t index = 0;
+    Instance *owner = NULL;
+    PyObject *known = known_state(instance, "fmi2FreeFMUstate", *state, &index, &owner);
+    if (known == NULL) return fmi2Error;
+    remove_state(owner, index);
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    py.Py_DecRef(known);
+    py.PyGILState_Release(gil);
+    *state = NULL;
+    return fmi2OK;
+}
+
+/* The serialized bytes of a known state (new reference), or NULL. GIL held. */
+static PyObject *serialized(Instance *instance, const char *function, fmi2FMUstate state, fmi2Status *status)
+{
+    PyObject *known = known_state(instance, function, state, NULL, NULL);
+    if (known == NULL) {
+        *status = fmi2Error;
+        return NULL;
+    }
+    py.Py_IncRef(known);
+    PyObject *args[1] = {known};
+    Answer answer = ask(instance, function, NULL, "fmi2_serialize_fmu_state", args, 1, 3);
+    *status = answer.status;
+    if (answer.status > fmi2Warning || answer.value == NULL || py.PyBytes_Size(answer.value) < 0) {
+        py.PyErr_Clear();
+        clear(&answer.value);
+        if (*status <= fmi2Warning) *status = fmi2Error;
+    }
+    return answer.value;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
+{
+    BEGIN(fmi2SerializedFMUstateSize, lib.fmi2SerializedFMUstateSize(instance->inner, state, size))
+    NULL_ARRAYS(fmi2SerializedFMUstateSize, size == NULL)
+    fmi2Status status;
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *bytes = serialized(instance, "fmi2SerializedFMUstateSize", state, &status);
+    if (bytes != NULL) *size = (size_t)py.PyBytes_Size(bytes);
+    clear(&bytes);
+    py.PyGILState_Release(gil);
+    return status;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte serializedState[], size_t size)
+{
+    BEGIN(fmi2SerializeFMUstate, lib.fmi2SerializeFMUstate(instance->inner, state, serializedState, size))
+    NULL_ARRAYS(fmi2SerializeFMUstate, serializedState == NULL)
+    fmi2Status status;
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *bytes = serialized(instance, "fmi2SerializeFMUstate", state, &status);
+    if (bytes != NULL) {
+        size_t n = (size_t)py.PyBytes_Size(bytes);
+        if (n > size) {
+            emitf(instance, fmi2Error, "fmi2SerializeFMUstate: %zu bytes do not hold the state's %zu "
+                  "(fmi2SerializedFMUstateSize)", size, n);
+            status = fmi2Error;
+        } else {
+            memcpy(serializedState, py.PyBytes_AsString(bytes), n);
+        }
+    }
+    clear(&bytes);
+    py.PyGILState_Release(gil);
+    return status;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size, fmi2FMUstate *state)
+{
+    BEGIN(fmi2DeSerializeFMUstate, lib.fmi2DeSerializeFMUstate(instance->inner, serializedState, size, state))
+    NULL_ARRAYS(fmi2DeSerializeFMUstate, state == NULL || (serializedState == NULL && size > 0))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {py.PyBytes_FromStringAndSize(serializedState ? serializedState : "", (Py_ssize_t)size)};
+    fmi2Status status = give_state(instance, "fmi2DeSerializeFMUstate",
+                                   ask(instance, "fmi2DeSerializeFMUstate", NULL, "fmi2_deserialize_fmu_state", args, 1, 3),
+                                   state);
+    py.PyGILState_Release(gil);
+    return status;
+}
+
+/* ---- derivatives ------------------------------------------------------------------------------------- */
+static fmi2Status unsupported(Instance *instance, const char *function)
+{
+    emitf(instance, fmi2Error, "%s: not provided by this FMU's slave", function);
+    return fmi2Error;
 }
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[])
 {
-    Instance *instance = instance_of(c);
-    if (nvr > 0 && (vr == NULL || order == NULL || value == NULL)) {
-        log_to_host(&instance->callbacks, instance->name, fmi2Error, "fmi2SetRealInputDerivatives: NULL array");
-        return fmi2Error;
-    }
+    BEGIN(fmi2SetRealInputDerivatives, unsupported(instance, "fmi2SetRealInputDerivatives"))
+    NULL_ARRAYS(fmi2SetRealInputDerivatives, nvr > 0 && (vr == NULL || order == NULL || value == NULL))
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[3] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr), list_of_reals(value, nvr)};
-    fmi2Status status = call_slave(instance, "fmi2SetRealInputDerivatives", "fmi2_set_real_input_derivatives",
-                                   args, NULL, 0);
+    Answer answer = ask(instance, "fmi2SetRealInputDerivatives", NULL, "fmi2_set_real_input_derivatives", args, 3, 2);
     py.PyGILState_Release(gil);
-    return status;
+    return answer.status;
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                         const fmi2Integer order[], fmi2Real value[])
 {
-    Instance *instance = instance_of(c);
-    if (nvr > 0 && (vr == NULL || order == NULL || value == NULL)) {
-        log_to_host(&instance->callbacks, instance->name, fmi2Error, "fmi2GetRealOutputDerivatives: NULL array");
-        return fmi2Error;
-    }
+    BEGIN(fmi2GetRealOutputDerivatives, unsupported(instance, "fmi2GetRealOutputDerivatives"))
+    NULL_ARRAYS(fmi2GetRealOutputDerivatives, nvr > 0 && (vr == NULL || order == NULL || value == NULL))
     PyGILState_STATE gil = py.PyGILState_Ensure();
-    PyObject *args[3] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr), NULL};
-    fmi2Status status = call_slave(instance, "fmi2GetRealOutputDerivatives", "fmi2_get_real_output_derivatives",
-                                   args, value, nvr);
+    PyObject *args[2] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr)};
+    Answer answer = ask(instance, "fmi2GetRealOutputDerivatives", NULL, "fmi2_get_real_output_derivatives", args, 2, 3);
+    fmi2Status status = answer.status <= fmi2Warning
+        ? copy_values(instance, "fmi2GetRealOutputDerivatives", answer, value, NULL, nvr) : answer.status;
+    if (answer.status > fmi2Warning) clear(&answer.value);
     py.PyGILState_Release(gil);
     return status;
 }
@@ -707,127 +1276,71 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
                                         const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[])
 {
-    Instance *instance = instance_of(c);
-    if ((nUnknown > 0 && (vUnknown_ref == NULL || dvUnknown == NULL)) ||
-        (nKnown > 0 && (vKnown_ref == NULL || dvKnown == NULL))) {
-        log_to_host(&instance->callbacks, instance->name, fmi2Error, "fmi2GetDirectionalDerivative: NULL array");
-        return fmi2Error;
-    }
+    BEGIN(fmi2GetDirectionalDerivative, unsupported(instance, "fmi2GetDirectionalDerivative"))
+    NULL_ARRAYS(fmi2GetDirectionalDerivative, (nUnknown > 0 && (vUnknown_ref == NULL || dvUnknown == NULL)) ||
+                                              (nKnown > 0 && (vKnown_ref == NULL || dvKnown == NULL)))
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[3] = {list_of_vrs(vUnknown_ref, nUnknown), list_of_vrs(vKnown_ref, nKnown),
                          list_of_reals(dvKnown, nKnown)};
-    fmi2Status status = call_slave(instance, "fmi2GetDirectionalDerivative", "fmi2_get_directional_derivative",
-                                   args, dvUnknown, nUnknown);
+    Answer answer = ask(instance, "fmi2GetDirectionalDerivative", NULL, "fmi2_get_directional_derivative", args, 3, 3);
+    fmi2Status status = answer.status <= fmi2Warning
+        ? copy_values(instance, "fmi2GetDirectionalDerivative", answer, dvUnknown, NULL, nUnknown) : answer.status;
+    if (answer.status > fmi2Warning) clear(&answer.value);
     py.PyGILState_Release(gil);
     return status;
 }
 
-/* ---- forwarded as they are ---------------------------------------------------------------------------- */
-#define INNER(c) (instance_of(c)->inner)
-
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories, const fmi2String categories[])
+/* ---- status inquiries (doStep is never asynchronous) ---------------------------------------------------- */
+fmi2Status fmi2CancelStep(fmi2Component c)
 {
-    return lib.fmi2SetDebugLogging(INNER(c), loggingOn, nCategories, categories);
+    BEGIN(fmi2CancelStep, lib.fmi2CancelStep(instance->inner))
+    emitf(instance, fmi2Error, "fmi2CancelStep: no asynchronous fmi2DoStep to cancel (this FMU never returns fmi2Pending)");
+    return fmi2Error;
 }
 
-fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance, fmi2Real startTime,
-                               fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+static fmi2Status not_available(Instance *instance, const char *function, int kind)
 {
-    return lib.fmi2SetupExperiment(INNER(c), toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime);
+    emitf(instance, fmi2Discard, "%s: status kind %d is not available (doStep is never asynchronous)", function, kind);
+    return fmi2Discard;
 }
-
-fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return lib.fmi2EnterInitializationMode(INNER(c)); }
-fmi2Status fmi2ExitInitializationMode(fmi2Component c) { return lib.fmi2ExitInitializationMode(INNER(c)); }
-fmi2Status fmi2Terminate(fmi2Component c) { return lib.fmi2Terminate(INNER(c)); }
-
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
-{
-    return lib.fmi2GetReal(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
-{
-    return lib.fmi2GetInteger(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
-{
-    return lib.fmi2GetBoolean(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
-{
-    return lib.fmi2GetString(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
-{
-    return lib.fmi2SetReal(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
-{
-    return lib.fmi2SetInteger(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[])
-{
-    return lib.fmi2SetBoolean(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
-{
-    return lib.fmi2SetString(INNER(c), vr, nvr, value);
-}
-
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state) { return lib.fmi2GetFMUstate(INNER(c), state); }
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state) { return lib.fmi2SetFMUstate(INNER(c), state); }
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) { return lib.fmi2FreeFMUstate(INNER(c), state); }
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
-{
-    return lib.fmi2SerializedFMUstateSize(INNER(c), state, size);
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[], size_t size)
-{
-    return lib.fmi2SerializeFMUstate(INNER(c), state, bytes, size);
-}
-
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *state)
-{
-    return lib.fmi2DeSerializeFMUstate(INNER(c), bytes, size, state);
-}
-
-fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
-                      fmi2Boolean noSetFMUStatePriorToCurrentPoint)
-{
-    return lib.fmi2DoStep(INNER(c), currentCommunicationPoint, communicationStepSize, noSetFMUStatePriorToCurrentPoint);
-}
-
-fmi2Status fmi2CancelStep(fmi2Component c) { return lib.fmi2CancelStep(INNER(c)); }
 
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
 {
-    return lib.fmi2GetStatus(INNER(c), s, value);
+    BEGIN(fmi2GetStatus, lib.fmi2GetStatus(instance->inner, s, value))
+    return not_available(instance, "fmi2GetStatus", (int)s);
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {
-    return lib.fmi2GetRealStatus(INNER(c), s, value);
+    BEGIN(fmi2GetRealStatus, lib.fmi2GetRealStatus(instance->inner, s, value))
+    NULL_ARRAYS(fmi2GetRealStatus, value == NULL)
+    if (s != fmi2LastSuccessfulTime) return not_available(instance, "fmi2GetRealStatus", (int)s);
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *time = py.PyObject_GetAttrString(instance->slave, "time");   /* the end of the last successful step */
+    *value = time ? py.PyFloat_AsDouble(time) : 0.0;
+    clear(&time);
+    py.PyErr_Clear();
+    py.PyGILState_Release(gil);
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
 {
-    return lib.fmi2GetIntegerStatus(INNER(c), s, value);
+    BEGIN(fmi2GetIntegerStatus, lib.fmi2GetIntegerStatus(instance->inner, s, value))
+    return not_available(instance, "fmi2GetIntegerStatus", (int)s);
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {
-    return lib.fmi2GetBooleanStatus(INNER(c), s, value);
+    BEGIN(fmi2GetBooleanStatus, lib.fmi2GetBooleanStatus(instance->inner, s, value))
+    NULL_ARRAYS(fmi2GetBooleanStatus, value == NULL)
+    if (s != fmi2Terminated) return not_available(instance, "fmi2GetBooleanStatus", (int)s);
+    *value = fmi2False;           /* never asks to end the simulation: after fmi2Discard the state is kept */
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
 {
-    return lib.fmi2GetStringStatus(INNER(c), s, value);
+    BEGIN(fmi2GetStringStatus, lib.fmi2GetStringStatus(instance->inner, s, value))
+    return not_available(instance, "fmi2GetStringStatus", (int)s);
 }

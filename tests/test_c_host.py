@@ -220,3 +220,38 @@ def test_python_without_numpy_is_named_in_one_message(c_calls, fmus, tmp_path):
     logged = _logged(run.stderr)
     assert len(logged) == 1 and run.stderr.strip() == logged[0], run.stderr
     assert all(w in logged[0] for w in (str(python), "cannot import numpy", "EMCOSIM_FMU_PYTHON")), logged[0]
+
+
+def test_bad_calls_in_c_host_are_refused_and_the_host_survives(c_calls, fmus, tmp_path):
+    """Issue 15, item 5, in a C host: a changed and a doubled deserialization, a state pointer no FMU
+    gave out, doStep after fmi2Terminate and fmi2FreeInstance twice get fmi2Error (or are ignored);
+    the instance keeps working in between, a new one works after, and the host exits with status 0."""
+    folder, vr = extract(fmus["MEMS_Theorem2"], tmp_path)
+    run, lines = run_calls(c_calls, folder, [
+        "inst", "init", "sget", "ser", "flip", "60", "deser", "deser", "step", "0", "1e-6", "sbogus",
+        "setr", str(vr["u"]), "1", "getr", "999", "term", "step", "1e-6", "1e-6", "free", "free", "inst", "init",
+        "step", "0", "1e-6", "free"])
+    assert run.returncode == 0, run.stderr[-1500:]
+    assert [w[:2] for w in lines] == [
+        ["inst", "0"], ["init", "0"], ["sget", "0"], ["ser", "0"], ["deser", "3"], ["deser", "3"], ["step", "0"],
+        ["sbogus", "3"], ["setr", "3"], ["getr", "3"], ["term", "0"], ["step", "3"], ["free"], ["free"],
+        ["inst", "0"], ["init", "0"], ["step", "0"], ["free"]]
+    for words in ("checksum mismatch", "not a state this FMU gave out", "u is an output",
+                  "valueReference 999 (unknown) is not a Real variable", "fmi2DoStep after fmi2Terminate",
+                  "fmi2FreeInstance called with an unknown or freed instance"):
+        assert words in run.stderr, (words, run.stderr)
+
+
+def test_instantiate_refuses_another_builds_guid_in_one_message(c_calls, fmus, tmp_path):
+    """The GUID passed to fmi2Instantiate must be the FMU's (an empty one is accepted): the
+    modelDescription.xml a host read and the binary it loaded must come from one build."""
+    folder, _ = extract(fmus["Reference"], tmp_path)
+    md = read_model_description(str(folder / "modelDescription.xml"))
+    exe = [str(c_calls), str(folder / "binaries" / "linux64" / "Reference.so"), "Reference", (folder / "resources").as_uri()]
+    for guid, expected in (("{00000000-0000-0000-0000-000000000000}", "null"), ("", "0"), (md.guid, "0")):
+        run = subprocess.run(["env", "-i", *exe, guid, "inst"], capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0 and run.stdout.split() == ["inst", expected], (guid, run.stdout, run.stderr)
+    assert len(_logged(run.stderr)) == 0
+    run = subprocess.run(["env", "-i", *exe, "{00000000-0000-0000-0000-000000000000}", "inst"], capture_output=True,
+                         text=True, timeout=300)
+    assert len(_logged(run.stderr)) == 1 and md.guid in run.stderr and "is not this FMU's" in run.stderr

@@ -33,7 +33,7 @@ CONTROLLERS = {"MEMS_Proposition1": mems, "MEMS_Theorem2": mems, "Maglev_Proposi
                "Maglev_Theorem3": maglev}
 TRACKING = {"MEMS_Theorem2", "Maglev_Theorem3"}
 ALL = list(PLANTS) + list(CONTROLLERS) + ["Reference"]
-OK, DISCARD, ERROR, FATAL = 0, 2, 3, 4
+OK, DISCARD, ERROR = 0, 2, 3
 JET = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
 
 
@@ -101,7 +101,7 @@ def test_capabilities_and_structure(fmus):
         cs = md.coSimulation
         assert cs.modelIdentifier == identifier == md.modelName
         assert cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
-        assert not cs.canInterpolateInputs
+        assert cs.canInterpolateInputs == (identifier != "Reference")     # plants, controllers: input derivatives
         assert float(md.defaultExperiment.stopTime) > float(md.defaultExperiment.startTime)
         for v in md.modelVariables:
             assert v.description, f"{identifier}.{v.name} has no description"
@@ -429,11 +429,16 @@ def test_fmu_state_round_trip_reproduces_run(fmus, identifier, h):
 ])
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")      # the c0, a2 = 1e100 case
 def test_invalid_parameter_fails_initialization_with_reason(fmus, identifier, values, words):
-    """pythonfmu 0.7.0 reports a failed initialization as fmi2Fatal (no fmi2Error is reachable); the
-    message names the parameter and the condition, and the host keeps running."""
+    """A failed initialization is fmi2Error (pythonfmu alone could only report fmi2Fatal) with a message
+    that names the parameter and the condition; the instance stays in initialization mode, so the
+    parameter can be corrected and initialization repeated; new instances work."""
     slave = Slave(fmus[identifier])
-    assert slave.init(**values) == FATAL
+    assert slave.init(**values) == ERROR
     assert all(w in slave.errors() for w in words), slave.errors()
+    defaults = {v.name: v.start for v in slave.md.modelVariables if v.name in values}
+    slave.set(**{name: float(start) for name, start in defaults.items()})
+    assert slave.call(slave.fmu.fmi2ExitInitializationMode, slave.fmu.component) == OK
+    assert slave.step(0.0, 1e-6) == OK
     slave.free()
     again = Slave(fmus[identifier])                 # the process and the FMU are still usable
     assert again.init() == OK
@@ -475,7 +480,9 @@ def test_non_finite_inputs_are_reported(fmus):
     ctrl = Slave(fmus["Maglev_Theorem3"])
     ctrl.init()
     ctrl.set(q_star_ddot=math.nan)
-    assert math.isnan(ctrl.get("u")[0])
+    with pytest.raises(FMICallException) as info:                # never a non-finite output with fmi2OK
+        ctrl.get("u")
+    assert info.value.status == ERROR and "u = nan is not finite" in ctrl.errors()
     assert ctrl.step(0.0, 1e-2) == DISCARD
     assert "q_star_ddot" in ctrl.errors()
     ctrl.set(q_star_ddot=0.0)
@@ -497,7 +504,7 @@ def test_controller_warns_about_violated_conditions_and_strict_refuses(fmus, ide
     assert all(w in warnings for w in words), warnings
     warned.free()
     refused = Slave(fmus[identifier])
-    assert refused.init(**values, strict=1) == FATAL
+    assert refused.init(**values, strict=1) == ERROR
     assert all(w in refused.errors() for w in words) and "strict = 1" in refused.errors()
     refused.free()
     clean = Slave(fmus[identifier])
@@ -605,6 +612,25 @@ def test_module_of_our_name_loaded_by_another_fmu_is_refused_in_one_message(fmus
     messages = results[1]["messages"]
     assert len(messages) == 1 and messages[0][0] == ERROR, messages
     assert f"module {script} is already loaded" in messages[0][1] and "not this FMU's" in messages[0][1]
+
+
+def test_model_exchange_instantiation_is_refused_with_a_message(fmus):
+    """The FMUs are Co-Simulation FMUs: fmi2Instantiate for Model Exchange is NULL with one message."""
+    import ctypes
+
+    from fmpy import extract
+    md = read_model_description(str(fmus["MEMS"]))
+    unzipdir = extract(str(fmus["MEMS"]))
+    messages = []
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg: messages.append((status, msg.decode())))
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier="MEMS")
+    component = fmu.fmi2Instantiate(b"me", 0, md.guid.encode(), (Path(unzipdir) / "resources").as_uri().encode(),
+                                    ctypes.byref(callbacks), 0, 0)
+    assert component is None
+    assert messages == [(ERROR, "fmi2Instantiate: this FMU is for Co-Simulation only (fmuType 0)")]
 
 
 # ---- FMI 2.0 derivative functions (answered by the loader, emcosim_fmu_loader.c) ------------------------

@@ -1,4 +1,4 @@
-"""components.plant_step: the plant over one communication step with a held input."""
+"""components.plant_step: the plant over one communication step with a held or polynomial input."""
 from __future__ import annotations
 
 import math
@@ -9,8 +9,11 @@ import pytest
 from components.maglev import Maglev
 from components.mems import MEMS
 from components.ph_plant import DomainError
-from components.plant_step import (LAYER_DECAY, PlantStepper, _ArrayModel, _ScalarModel, _rodas4_structured,
-                                   _solve_structured, nominal_scale, simulate_zoh)
+import components.plant_step as plant_step
+from components import catalog
+from components.plant_step import (_A, _C, _GAMMA, _STAGE_GAMMA, _STAGE_TIME, LAYER_MIN_DECAY, PlantStepper,
+                                   _ArrayModel, _ScalarModel, _rodas4_structured, _solve_structured, nominal_scale,
+                                   simulate_polynomial, simulate_zoh)
 
 PLANTS = {"MEMS": MEMS, "Maglev": Maglev}
 
@@ -60,20 +63,20 @@ def test_fourth_order_on_a_smooth_step(dense):
     errors = []
     for h in (0.01, 0.005):
         rodas4 = stepper._rodas4_dense if dense else _rodas4_structured
-        y, _ = rodas4(_ArrayModel(plant) if dense else stepper.model, (eta[0] / sq, eta[1] / sp, eta[2] / sx), 0.5, h,
+        y, _ = rodas4(_ArrayModel(plant) if dense else stepper.model, (eta[0] / sq, eta[1] / sp, eta[2] / sx), 0.5, 0.0, 0.0, h,
                       1 / sq, 1 / sp, 1 / sx, sq, sp, sx)
         ref = simulate_zoh(plant, eta, h, [0.5], rtol=1e-13)[-1]
         errors.append(np.max(np.abs(np.array(y) - ref / stepper.scale)))
     assert 2 ** 4.5 < errors[0] / errors[1] < 2 ** 5.5
 
 
-def test_electrical_layer_is_applied_only_when_fast_and_complete():
+def test_electrical_layer_is_applied_only_when_fast():
     mems = PlantStepper(MEMS())
     eta = np.array([2e-5, 1e-10, 0.0])
     mems.step(eta, 25.0, 1e-6)
     assert mems.layer_applied and mems.n_substeps == 1
     alpha = (1 / 100.0) / (35.6e-9 * (2e-5 + 15e-6))
-    mems.step(eta, 25.0, 0.5 * LAYER_DECAY / alpha)          # the layer would not end inside the step
+    mems.step(eta, 25.0, 0.5 * LAYER_MIN_DECAY / alpha)      # the layer hardly decays inside the step
     assert not mems.layer_applied
     maglev = PlantStepper(Maglev())
     maglev.step(Maglev().equilibrium([0.0025]), 0.0, 1e-3)
@@ -140,3 +143,125 @@ def test_dense_path_for_plants_without_constant_mass():
     eta = np.array([2e-5, 1e-10, 3e-11])
     for u, h in [(25.0, 1e-6), (10.0, 1e-5), (30.0, 1e-8)]:
         assert np.allclose(fast.step(eta, u, h), dense.step(eta, u, h), rtol=1e-9, atol=0)
+
+
+# ---- polynomial input over the step ---------------------------------------------------------------
+
+def test_stage_times_and_gammas_follow_from_the_coefficient_table():
+    """RODAS4's stage times alpha_i and f_t coefficients gamma_i (rodas.f C2..C4, D1..D4) are the row sums
+    of alpha = a Gamma and Gamma = (I/gamma - c)^-1 of the transformed coefficients a, c the step uses."""
+    a, c = np.zeros((6, 6)), np.zeros((6, 6))
+    for i in range(6):
+        a[i, :i], c[i, :i] = _A[i], _C[i]
+    Gamma = np.linalg.inv(np.eye(6) / _GAMMA - c)
+    assert np.allclose((a @ Gamma).sum(axis=1), _STAGE_TIME, rtol=0, atol=1e-13)
+    assert np.allclose(Gamma.sum(axis=1), _STAGE_GAMMA, rtol=0, atol=1e-13)
+
+
+def _one_step_errors(dense: bool, hs, u=(0.5, 40.0, -3000.0)):
+    """Errors of one RODAS4 step of the maglev (no electrical layer) with input u0 + u1 t + u2 t^2/2."""
+    plant = Maglev()
+    stepper = PlantStepper(plant)
+    sq, sp, sx = stepper.scale
+    eta = plant.equilibrium([0.0025]) + np.array([0.0, 0.002, 0.01])
+    errors = []
+    for h in hs:
+        rodas4 = stepper._rodas4_dense if dense else _rodas4_structured
+        y, _ = rodas4(_ArrayModel(plant) if dense else stepper.model, tuple(eta / stepper.scale), *u, h,
+                      1 / sq, 1 / sp, 1 / sx, sq, sp, sx)
+        ref = simulate_polynomial(plant, eta, h, [u], rtol=1e-13)[-1]
+        errors.append(np.max(np.abs(np.array(y) - ref / stepper.scale)))
+    return errors
+
+
+@pytest.mark.parametrize("dense", [False, True], ids=["written-out stages", "coefficient loop"])
+def test_fourth_order_with_a_time_varying_input(dense):
+    """The local error of one step with a quadratic input shrinks like h^5 (order 4): ratio ~2^5 for h, h/2."""
+    e = _one_step_errors(dense, (0.01, 0.005))
+    assert 2 ** 4.5 < e[0] / e[1] < 2 ** 5.5, e
+
+
+def test_without_the_f_t_term_the_order_drops(monkeypatch):
+    """The test above can fail: dropping the gamma_i h f_t terms (the stage input times kept) leaves a
+    local error of order h^2 (ratio ~4 for h, h/2), and a much larger one."""
+    for name in ("_d1", "_d2", "_d3", "_d4"):
+        monkeypatch.setattr(plant_step, name, 0.0)
+    e = _one_step_errors(False, (0.01, 0.005))
+    assert e[0] / e[1] < 2 ** 3, e
+    monkeypatch.undo()
+    assert e[1] > 100 * _one_step_errors(False, (0.005,))[0]
+
+
+@pytest.mark.parametrize("name", list(PLANTS))
+def test_polynomial_input_steps_match_radau(name):
+    """Communication steps with polynomial inputs (orders 0, 1, 2) from random states equal scipy's Radau
+    with the same input to the stepper's tolerance: |error_i| <= rtol (s_i + |eta_i|)."""
+    plant = PLANTS[name]()
+    rng = np.random.default_rng(5)
+    stepper = PlantStepper(plant, rtol=1e-9)
+    s = np.array(stepper.scale)
+    h = 2e-6 if name == "MEMS" else 2e-3
+    for eta in _states(name, 3):
+        u0 = 20.0 if name == "MEMS" else 0.5
+        u = (u0 * rng.uniform(0.5, 1.5), u0 * rng.normal() / (50 * h), u0 * rng.normal() / (50 * h) ** 2)
+        for order in (1, 2, 3):
+            poly = u[:order]
+            y = stepper.step(eta, poly[0], h, *poly[1:])
+            ref = simulate_polynomial(plant, eta, h, [poly], rtol=1e-11)[-1]
+            assert np.all(np.abs(y - ref) <= stepper.rtol * (s + np.abs(ref))), (order, y, ref)
+
+
+def _tracking_loop(h: float, first_order: bool, n: int):
+    """n communication steps of the MEMS tracking loop (Theorem 2, D_d = -0.4) from the reference state at
+    t = 10 ms, the input held or with its derivative along the loop; each step against Radau."""
+    plant, ref = MEMS(), catalog.reference("sinusoid", {})
+    ctrl = catalog.controller("MEMS_Theorem2", {"D_d": -0.4})
+    stepper = PlantStepper(plant, rtol=1e-9)
+    s = np.array(stepper.scale)
+    eta = plant.feasible_state(ref.jet(0.01))[0]
+    worst, substeps, layers = 0.0, [], 0
+    for k in range(n):
+        t = 0.01 + k * h
+        x = list(eta) + list(ref.values(t))
+        u = ctrl.u_scalar(*eta, ref.values(t))
+        du = ctrl.u_derivative(x, list(plant.f(eta, u)) + list(ref.derivatives(t, 4)[1:])) if first_order else 0.0
+        y = stepper.step(eta, u, h, du)
+        reference = simulate_polynomial(plant, eta, h, [(u, du)], rtol=1e-12)[-1]
+        worst = max(worst, float(np.max(np.abs(y - reference) / (stepper.rtol * (s + np.abs(reference))))))
+        substeps.append(stepper.n_substeps + stepper.n_rejected)
+        layers += stepper.layer_applied
+        eta = y
+    return worst, substeps, layers
+
+
+@pytest.mark.parametrize("first_order", [False, True], ids=["held input", "first-order hold"])
+def test_partial_layer_keeps_tracking_steps_accurate_in_one_substep(first_order):
+    """At the tracking scenario's q ~ 0.06 m the layer lasts ~2e-7 s, a fifth of a 1 us step: each input
+    jump used to cost 10-12 substeps. Taken in closed form (with what is left of it added at the end),
+    every step is one substep and within the tolerance of the Radau solution."""
+    worst, substeps, layers = _tracking_loop(1e-6, first_order, 8)
+    assert worst <= 1.0 and layers == 8 and max(substeps) == 1, (worst, substeps, layers)
+
+
+def test_layer_is_refused_when_what_it_neglects_is_too_large():
+    """A large input jump with a layer that lasts a fifth of the step: its kick on p is ~1e2 of the
+    tolerance and the terms it neglects (relative ~1/(alpha T)) would show, so the step resolves the layer
+    with the error control instead (many substeps) and still matches Radau."""
+    plant = MEMS()
+    stepper = PlantStepper(plant, rtol=1e-9)
+    eta = np.array([0.06, 2.8e-9, 0.0])                          # no charge, 1300 V applied
+    alpha = (1 / 100.0) / (35.6e-9 * (0.06 + 15e-6))
+    h = 5.0 / alpha
+    y = stepper.step(eta, 1300.0, h)
+    assert not stepper.layer_applied and stepper.n_substeps > 5
+    ref = simulate_zoh(plant, eta, h, [1300.0], rtol=1e-12)[-1]
+    assert np.all(np.abs(y - ref) <= stepper.rtol * (np.array(stepper.scale) + np.abs(ref)))
+
+
+def test_non_finite_input_derivatives_are_refused_by_name():
+    stepper = PlantStepper(MEMS())
+    eta = np.array([2e-5, 0.0, 0.0])
+    with pytest.raises(ValueError, match="du/dt = nan"):
+        stepper.step(eta, 25.0, 1e-6, math.nan)
+    with pytest.raises(ValueError, match="d2u/dt2 = inf"):
+        stepper.step(eta, 25.0, 1e-6, 0.0, math.inf)

@@ -16,24 +16,37 @@ from emcosim.engine.ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURES = ["fig1_mems_regulation", "fig2_mems_tracking", "fig3_maglev_tracking", "fig4_maglev_error_norms"]
+VERDICTS = (report.HOLDS, report.FAILS, report.UNDECIDED)
 
 
 def test_reproduce_writes_every_figure_and_both_reports(fmu_dir, tmp_path, capsys):
-    """A quick look (every scenario cut to 2 ms) through the command line, two worker processes."""
+    """A quick look (every scenario cut to 2 ms) through the command line, two worker processes: the
+    reports say the runs were shortened and decide nothing that needs the full horizon."""
     from emcosim.cli import main
     assert main(["reproduce", "--out", str(tmp_path), "--fmu-dir", str(fmu_dir), "--stop-time", "2e-3",
                  "--jobs", "2"]) == 0
     for stem in FIGURES:
         for ext in ("png", "svg"):
             assert (tmp_path / f"{stem}.{ext}").stat().st_size > 10_000, f"{stem}.{ext}"
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
+
+    def strict(constant):
+        raise ValueError(f"not strict JSON: {constant}")
+    metrics = json.loads((tmp_path / "metrics.json").read_text(), parse_constant=strict)
     assert set(metrics) == set(PAPER_CASES.values())
-    claims = json.loads((tmp_path / "claims.json").read_text())
-    assert len(claims) == 11 and all(isinstance(c["holds"], bool) and c["numbers"] for c in claims)
+    assert all(m["horizon_s"] == 2e-3 for m in metrics.values())
+    report_ = json.loads((tmp_path / "claims.json").read_text(), parse_constant=strict)
+    assert report_["banner"].startswith("Shortened runs: 10 of 10 scenarios")
+    claims = report_["claims"]
+    assert len(claims) == 14 and all(c["test"] and c["numbers"] and c["verdict"] in VERDICTS for c in claims)
+    simulated = [c for c in claims if "Theorem 1" not in c["text"] and "overdamped" not in c["text"]]
+    assert all(c["verdict"] != "holds" or "sign changes" in c["reason"] for c in simulated)   # only what 2 ms shows
     text = (tmp_path / "claims.md").read_text()
-    assert "Choices the paper does not make" in text and "erratum 7" in text
+    assert "Shortened runs" in text.split("\n")[2] and "Choices the paper does not make" in text
+    assert "erratum 7" in text and "| maglev_tracking_D0_R0.82 | 0.002 | 40 |" in text
+    k_e = [line for line in (tmp_path / "metrics.md").read_text().splitlines() if "K_e = R_e_bar - R_e > 0" in line]
+    assert sorted(line.split(" | ")[0] for line in k_e) == ["| maglev_tracking_D-1_R0.82", "| maglev_tracking_D0_R0.82"]
     err = capsys.readouterr().err
-    assert all(f"{name}:" in err for name in PAPER_CASES.values())          # progress names every scenario
+    assert all(f"{name}:" in err for name in PAPER_CASES.values())          # a line for every scenario
 
 
 def monolithic_run(name: str, role: str, stop_time: float) -> report.Run:
@@ -42,7 +55,8 @@ def monolithic_run(name: str, role: str, stop_time: float) -> report.Run:
     s = read_scenario(ROOT / "scenarios" / name)
     r = monolithic(s, stop_time=stop_time, n_samples=samples_for(stop_time, s.step_size, 10 ** 6))
     plant = "MEMS" if name.startswith("mems") else "Maglev"
-    return report.Run(name, plant, role, r.t, r.eta[:, 0], r.eta[:, 1], r.eta[:, 2], r.u[:, 0], r.eta_star)
+    return report.Run(name, plant, role, r.t, r.eta[:, 0], r.eta[:, 1], r.eta[:, 2], r.u[:, 0], r.eta_star,
+                      horizon=stop_time)
 
 
 @pytest.mark.parametrize("roles, stop_time", [(("mems_reg_0", "mems_reg_1"), 0.01),
@@ -54,7 +68,7 @@ def test_report_numbers_are_those_of_the_monolithic_reference(roles, stop_time, 
         a = report.run_metrics(cosim[role])
         b = report.run_metrics(monolithic_run(name, role, stop_time))
         assert a.oscillations == b.oscillations, (name, a, b)
-        assert a.overshoot == pytest.approx(b.overshoot, abs=0.01), (name, a, b)
+        assert a.overshoot == pytest.approx(b.overshoot, abs=1.0), (name, a, b)      # percentage points
         assert a.ise == pytest.approx(b.ise, rel=0.01), (name, a, b)
         assert a.max_abs_u == pytest.approx(b.max_abs_u, rel=0.01), (name, a, b)
         assert a.initial_error == b.initial_error
@@ -65,13 +79,18 @@ def test_report_numbers_are_those_of_the_monolithic_reference(roles, stop_time, 
 
 
 def test_claims_verdicts_are_those_of_the_monolithic_reference(fmu_dir):
-    """The MEMS regulation claims (D_d = 0 oscillates and converges; D_d = -1 settles without
-    overshoot), judged on the co-simulation and on the monolithic closed loop, over 10 ms."""
+    """The MEMS regulation claims judged on the co-simulation and on the monolithic closed loop, both
+    over 10 ms taken as the horizon: D_d = 0 oscillates and decays at the same fitted rate, but
+    reaches the 2 % band only after 10 ms (not decided); D_d = -1 settles without overshoot."""
     roles = {role: PAPER_CASES[role] for role in ("mems_reg_0", "mems_reg_1")}
     cosim, _ = run_paper_scenarios(roles, stop_time=0.01, fmu_dir=fmu_dir, jobs=1)
+    for run in cosim.values():
+        run.horizon = 0.01
     mono = {role: monolithic_run(name, role, 0.01) for role, name in roles.items()}
     cases = {role: role for role in roles}
     ours = report.claims({r: cosim[r] for r in roles}, cases)
     truth = report.claims(mono, cases)
     assert [c.text for c in ours] == [c.text for c in truth] and len(ours) == 3
-    assert [c.holds for c in ours] == [c.holds for c in truth] == [True, True, True]
+    assert [c.verdict for c in ours] == [c.verdict for c in truth] == [report.UNDECIDED, report.HOLDS, report.HOLDS]
+    assert ours[0].numbers["fitted decay rate [1/s]"] == pytest.approx(truth[0].numbers["fitted decay rate [1/s]"],
+                                                                       rel=0.01)

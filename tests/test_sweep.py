@@ -160,3 +160,55 @@ def test_malformed_specifications_are_one_line_errors(args, message, fmu_dir, tm
     err = capsys.readouterr().err.strip()
     assert code == 1
     assert len(err.splitlines()) == 1 and err.startswith("emcosim: error:") and message in err, err
+
+
+# ---- plots: what each figure shows (its data, also stored in the PNG's metadata) ------------------
+
+def _rows(values: dict[tuple[float, float], float], metric: str) -> list[dict]:
+    rows = []
+    for (a, b), v in values.items():
+        row = {"controller.D_d": a, "controller.R_e_bar": b, "status": "ok", **{m: 1.0 for m in METRICS}}
+        row[metric] = v
+        rows.append(row)
+    return rows
+
+
+def _png_description(path: Path) -> dict:
+    import json
+
+    from PIL import Image
+    return json.loads(Image.open(path).text["Description"])
+
+
+def test_heatmap_log_scale_not_settled_and_grid_ticks(tmp_path):
+    from emcosim.paper.sweep_output import heatmap_data, plot
+    grid = {"controller.D_d": [-1.0, 0.0], "controller.R_e_bar": [0.82, 2.82]}
+    units = {"controller.D_d": "Wb/m", "controller.R_e_bar": "Ohm"}
+    settle = {(-1.0, 0.82): 4.5, (0.0, 0.82): float("inf"), (-1.0, 2.82): 12.0, (0.0, 2.82): 40.0}
+    data = heatmap_data(_rows(settle, "settling_time_2pct"), list(grid), grid, units, "settling_time_2pct", 40.0)
+    assert data["x"]["ticks"] == [-1.0, 0.0] and data["y"]["ticks"] == [0.82, 2.82]
+    assert data["x"]["label"] == "controller.D_d [Wb/m]"
+    assert data["text"] == [["4.5", "not settled"], ["12", "not settled"]]   # inf, and equal to the horizon
+    assert data["scale"] == "linear"                                          # 4.5 .. 12: within a decade
+    ise = {(-1.0, 0.82): 5e-7, (0.0, 0.82): 1e-5, (-1.0, 2.82): 1.2e-6, (0.0, 2.82): 3e-7}
+    files = plot(_rows(ise, "ise"), grid, units, tmp_path, horizon=40.0)
+    assert len(files) == len(METRICS)
+    shown = _png_description(tmp_path / "sweep_ise.png")
+    assert shown["scale"] == "log" and shown["values"] == [[5e-7, 1e-5], [1.2e-6, 3e-7]]
+    assert shown["label"] == "ISE = integral of e^2 [m^2 s]"
+    assert _png_description(tmp_path / "sweep_overshoot.png")["label"] == "overshoot (% of |e(0)|) [%]"
+    (tmp_path / "s").mkdir()
+    plot(_rows(settle, "settling_time_2pct"), grid, units, tmp_path / "s", horizon=40.0)
+    unsettled = _png_description(tmp_path / "s" / "sweep_settling_time_2pct.png")
+    assert unsettled["values"] == [[4.5, None], [12.0, None]] and unsettled["text"][1][1] == "not settled"
+
+
+def test_line_plot_marks_not_settled_and_ticks_the_grid(tmp_path):
+    from emcosim.paper.sweep_output import plot
+    rows = [{"controller.D_d": d, "status": "ok", **{m: 1.0 for m in METRICS}, "settling_time_2pct": st}
+            for d, st in [(-1.0, 0.8e-3), (-0.5, 1.2e-3), (0.0, float("inf"))]]
+    path, = plot(rows, {"controller.D_d": [-1.0, -0.5, 0.0]}, {"controller.D_d": "C/m"}, tmp_path, horizon=0.02)
+    shown = _png_description(path)
+    assert shown["x"] == {"name": "controller.D_d", "unit": "C/m", "values": [-1.0, -0.5, 0.0]}
+    panel = shown["panels"]["settling_time_2pct"]
+    assert panel["mean"] == [0.8e-3, 1.2e-3, None] and panel["not_settled_at"] == [0.0] and panel["failed_at"] == []

@@ -5,6 +5,8 @@ The container holds the scenario's FMUs and connections; its variables are
 - every parameter value of the scenario's .ssv files, as a parameter "component.variable" whose
   start is the .ssv value (so `fmpy simulate loop.fmu --start-values controller.D_d -0.4` works),
 - every output connector, as an output "component.variable".
+Each keeps the unit and description of its component's variable; the components' unit definitions
+are copied into the container's modelDescription (fmpy.container_fmu copies none by itself).
 The container runs with the fixed step given here and `parallelDoStep=False` (parallel stepping
 aborts the process): it steps the components one after the other and propagates their outputs
 through the connections at communication points. For a loop of state-output plants and static
@@ -54,7 +56,7 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
         for var, value in parameters[name]:
             v = ModelVariable(type=var.type, variability=var.variability or "fixed", causality="parameter",
                               initial="exact", name=f"{name}.{var.name}", description=var.description,
-                              start=_literal(value))
+                              start=_literal(value), unit=_unit(var))
             variables.append(v)
             mappings[v] = [(components[name], var)]
     outputs = []
@@ -64,7 +66,8 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
             if var.causality != "output":
                 continue
             v = ModelVariable(type=var.type, variability="continuous", causality="output",
-                              initial="calculated", name=f"{comp.name}.{k.name}", description=var.description)
+                              initial="calculated", name=f"{comp.name}.{k.name}", description=var.description,
+                              unit=_unit(var))
             variables.append(v)
             mappings[v] = [(components[comp.name], var)]
             outputs.append(Unknown(variable=v, dependencies=[]))
@@ -79,6 +82,7 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
                                             stepSize=repr(h)),
         coSimulation=CoSimulation(modelIdentifier="container_fmu", fixedInternalStepSize=h),
         modelVariables=variables)
+    md.unitDefinitions = _unit_definitions(instances, variables)
     md.outputs = outputs
     md.initialUnknowns = [Unknown(variable=u.variable, dependencies=[]) for u in outputs]
     conns = []
@@ -100,6 +104,28 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
         shutil.rmtree(workdir, ignore_errors=True)
     read_model_description(str(filename))                               # fails loudly if unreadable
     return filename
+
+
+def _unit(var) -> str | None:
+    """The unit of a Real variable: its own, or its declared type's."""
+    if var.type != "Real":
+        return None
+    return var.unit or (var.declaredType.unit if var.declaredType is not None else None)
+
+
+def _unit_definitions(instances, variables) -> list:
+    """The components' definitions of the units the container's variables use (first definition of
+    each name); a unit two components define differently is an error."""
+    used = {v.unit for v in variables if v.unit}
+    found = {}
+    for inst in instances.values():
+        for unit in inst.model_description.unitDefinitions:
+            if unit.name not in used:
+                continue
+            if unit.name in found and repr(found[unit.name].baseUnit) != repr(unit.baseUnit):
+                raise ScenarioError(f"unit '{unit.name}' is defined differently by two components ({inst.path.name})")
+            found.setdefault(unit.name, unit)
+    return [found[name] for name in sorted(found)]
 
 
 def _typed(var) -> ModelVariable:

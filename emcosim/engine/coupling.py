@@ -29,6 +29,7 @@ transfers of master.py).
 from __future__ import annotations
 
 import ctypes
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -116,12 +117,44 @@ class _DerivativeTransfer:
         self.elapsed = 0.0
         self.slots: list[int] = []                                # derivative slots, one per entry
 
+        self.getter = getter
+        self.view = memoryview(self.values).cast("B").cast("d")    # the values as plain doubles
+
     def __call__(self) -> None:
+        if not self.getter:
+            self._check_finite()
         tic = time.perf_counter()
         status = self.call(*self.args)
         self.elapsed += time.perf_counter() - tic
         if status > 1:
             raise FMICallException(self.function, status)
+        if self.getter:
+            self._check_finite()
+
+    def _check_finite(self) -> None:
+        """A NaN or infinity got from the FMU (it may return one with fmi2OK) or about to be set on
+        it ends the run, as for values (master._Transfer)."""
+        if math.isfinite(sum(self.view)):
+            return
+        for (name, k), v in zip(self.entries, self.values):
+            if not math.isfinite(v):
+                raise NonFiniteDerivative(self, name, k, v)
+
+
+class NonFiniteDerivative(Exception):
+    """A NaN or infinity among the derivatives got from (or about to be set on) an FMU."""
+
+    def __init__(self, transfer: _DerivativeTransfer, name: str, order: int, value: float):
+        super().__init__(name)
+        self.transfer, self.name, self.order, self.value = transfer, name, order, value
+
+    def message(self, t: float) -> str:
+        inst = self.transfer.inst
+        what = f"derivative of order {self.order} of {inst.name}.{self.name} = {self.value} at t = {t:.9g} s"
+        if self.transfer.getter:
+            return (f"{what}: {inst.path.name} (component '{inst.name}') returned a value that is not finite "
+                    "(fmi2GetRealOutputDerivatives)")
+        return f"{what}: the value to set on this input (fmi2SetRealInputDerivatives) is not finite"
 
 
 class _Extrapolation:

@@ -19,6 +19,9 @@ Communication points: fixed, t_n = t0 + n h; or, with a tolerance, chosen by ste
 the recorded variables keep that relative error over the run (FMU-state rollback, a shadow copy of
 the FMUs for the global error estimate).
 
+Every Real value the master gets from an FMU or sets on one is checked: a NaN or infinity ends the
+run with a SimulationError naming the variable and the time (an FMU may return one with fmi2OK).
+
 The master knows nothing of the models: any FMI 2.0 co-simulation FMU and any SSP scenario runs.
 """
 from __future__ import annotations
@@ -27,25 +30,26 @@ import ctypes
 import dataclasses
 import math
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
-from fmpy import extract, read_model_description
+from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from fmpy import calloc, free
 
-from . import coupling, dependencies, stepcontrol
+from . import coupling, dependencies, stepcontrol, tempdirs, units
 from .errors import ScenarioError, SimulationError
-from .results import Result
-from .ssd import Scenario, parse_value
+from .results import Result, ResultFile
+from .ssd import Scenario, extract_archive, parse_value
 
 C_TYPES = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+INT_MIN, INT_MAX = -2**31, 2**31 - 1     # fmi2Integer is a 32-bit int
+MAX_STEPS = 10**8                        # more communication steps must be confirmed (max_steps, --max-steps)
 
 
 @dataclass
@@ -82,13 +86,45 @@ class _Transfer:
         self.n = len(vrs)
         self.args = (inst.slave.component, self.vr, self.n, self.values)   # plans are rebuilt with the instances
         self.elapsed = 0.0                                     # wall time inside the FMU
+        self.getter = getter
+        self.real = type_ == "Real"
+        # the values as plain doubles: summing this view is about 5x cheaper than summing the ctypes
+        # array (whose items are boxed one by one), measured in benchmarks/bench_integrity.py
+        self.view = memoryview(self.values).cast("B").cast("d") if self.real else None
 
     def __call__(self) -> None:
+        if self.real and not self.getter:
+            self._check_finite()
         tic = time.perf_counter()
         status = self.call(*self.args)
         self.elapsed += time.perf_counter() - tic
         if status > 1:
             raise FMICallException(self.function, status)
+        if self.real and self.getter:
+            self._check_finite()
+
+    def _check_finite(self) -> None:
+        if math.isfinite(sum(self.view)):                     # a NaN or inf anywhere makes the sum one
+            return
+        for name, v in zip(self.names, self.values):
+            if not math.isfinite(v):
+                raise NonFiniteValue(self, name, v)
+
+
+class NonFiniteValue(Exception):
+    """A NaN or infinity got from (or about to be set on) an FMU variable."""
+
+    def __init__(self, transfer: _Transfer, name: str, value: float):
+        super().__init__(name)
+        self.transfer, self.name, self.value = transfer, name, value
+
+    def message(self, t: float) -> str:
+        inst = self.transfer.inst
+        if self.transfer.getter:
+            return (f"{inst.name}.{self.name} = {self.value} at t = {t:.9g} s: {inst.path.name} (component "
+                    f"'{inst.name}') returned a value that is not finite{_last_message(inst)}")
+        return (f"{inst.name}.{self.name} = {self.value} at t = {t:.9g} s: the value to set on this input "
+                f"(after the connection's transformation) is not finite")
 
 
 class _Mirror:
@@ -126,7 +162,8 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
              start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
              progress: Callable[[float], None] | None = None, tolerance: float | None = None,
              timing: dict | None = None, coupling_order: int | None = None,
-             max_step: float | None = None) -> Result:
+             max_step: float | None = None, sink: ResultFile | None = None,
+             max_steps: float = MAX_STEPS) -> Result:
     """Run `scenario` once and return the recorded values at every communication point.
 
     start_values: "component.variable" -> value (text or number), overriding the .ssv values.
@@ -144,19 +181,25 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         communication steps ('steps') and FMUs ('fmus'), the time inside each FMU ('per_fmu',
         by component name), and 'overhead_per_fmu_step' =
         (total - fmu) / (steps * fmus): the master's own cost.
+    sink: a `results.ResultFile`: every row is written to it as it is produced and the returned
+        Result keeps only the last row in memory (without a sink, every row stays in memory).
+    max_steps: refuse a run of more communication steps than this (a typing error such as a step
+        of 1e-15 s would otherwise run for years); raise it to confirm a long run.
     Raises ScenarioError for a scenario that cannot run, SimulationError (with `.result`, the
-    values recorded so far) for an FMU that fails during the run.
+    values recorded so far) for an FMU that fails during the run (or a value that is not finite),
+    `errors.Interrupted` when stopped by a signal (see `stopping`).
     """
-    experiment(scenario, stop_time, step_size)                  # refuse a bad horizon before loading
+    experiment(scenario, stop_time, step_size, max_steps)       # refuse a bad horizon before loading
     with Simulation(scenario) as simulation:
         return simulation.run(stop_time=stop_time, step_size=step_size, start_values=start_values,
                               record=record, progress=progress, tolerance=tolerance, timing=timing,
-                              coupling_order=coupling_order, max_step=max_step)
+                              coupling_order=coupling_order, max_step=max_step, sink=sink, max_steps=max_steps)
 
 
-def experiment(scenario: Scenario, stop_time: float | None, step_size: float | None) -> tuple[float, float, float]:
+def experiment(scenario: Scenario, stop_time: float | None, step_size: float | None,
+               max_steps: float = MAX_STEPS) -> tuple[float, float, float]:
     """(start time, stop time, step size) of a run: the scenario's, overridden by the arguments;
-    a ScenarioError if they do not make a run."""
+    a ScenarioError if they do not make a run (or make more than max_steps communication steps)."""
     t0 = scenario.start_time
     t_stop = scenario.stop_time if stop_time is None else stop_time
     h = scenario.step_size if step_size is None else step_size
@@ -166,6 +209,17 @@ def experiment(scenario: Scenario, stop_time: float | None, step_size: float | N
         raise ScenarioError(f"{scenario.path}: stop time {t_stop} must be after the start time {t0}")
     if not (math.isfinite(h) and h > 0):
         raise ScenarioError(f"{scenario.path}: step size {h} must be positive")
+    steps = (t_stop - t0) / h
+    if not math.isfinite(steps):
+        raise ScenarioError(f"{scenario.path}: stop time {t_stop:g} s with step size {h:g} s: too many "
+                            "communication steps to count")
+    if h < 4 * math.ulp(max(abs(t0), abs(t_stop))):
+        raise ScenarioError(f"{scenario.path}: step size {h:g} s is below the resolution of time near "
+                            f"t = {max(abs(t0), abs(t_stop)):g} s (double precision: {math.ulp(max(abs(t0), abs(t_stop))):.3g} s)")
+    if steps > max_steps:
+        raise ScenarioError(f"{scenario.path}: stop time {t_stop:g} s with step size {h:g} s makes {steps:.3g} "
+                            f"communication steps, more than the limit of {max_steps:.3g}; give --max-steps "
+                            f"{math.ceil(steps)} (max_steps) to run it anyway")
     return t0, t_stop, h
 
 
@@ -223,9 +277,10 @@ class Simulation:
             start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
             progress: Callable[[float], None] | None = None, tolerance: float | None = None,
             timing: dict | None = None, coupling_order: int | None = None,
-            max_step: float | None = None) -> Result:
+            max_step: float | None = None, sink: ResultFile | None = None,
+            max_steps: float = MAX_STEPS) -> Result:
         """Run the scenario once; the arguments and errors are those of `simulate`."""
-        t0, t_stop, h = experiment(self.scenario, stop_time, step_size)
+        t0, t_stop, h = experiment(self.scenario, stop_time, step_size, max_steps)
         if tolerance is not None:
             stepcontrol.check_tolerance(tolerance)
             max_step = (t_stop - t0) / 50 if max_step is None else max_step
@@ -241,7 +296,9 @@ class Simulation:
             plan = self._plan(record, self.instances)
             orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
                                                 coupling_order, self._accepted)
-            result = Result(plan.columns)
+            if attempt and sink is not None:
+                sink.rewind()                         # the second pass replaces the first's rows
+            result = Result(plan.columns, sink=sink)
             stepper = _Stepper(self.scenario, self.instances, plan, [0.0] * _n_slots(plan),
                                self._derivatives(plan, orders, self.instances, coupling_order))
             steppers.append(stepper)
@@ -297,7 +354,7 @@ class Simulation:
             states = [s.getFMUstate() for s in slaves]
             stepper.t = t0
             stepper.resolve(with_derivatives=False)
-            failure = stepper.derivatives.resolve(t0, stepper.slots)
+            failure = stepper.derivatives_resolve()
             if failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
                     max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate:
                 for s, st in zip(slaves, states):
@@ -421,8 +478,11 @@ def load(scenario: Scenario) -> dict[str, Instance]:
 
 
 def check_connections(scenario: Scenario, instances: dict[str, Instance]) -> list:
-    """Each connection must run from an output to an input of the same type; an input has one source."""
+    """Each connection must run from an output to an input of the same type; an input has one source.
+    Returns the connections to run, with the unit conversion between the two ends (SSP: converted
+    to the end's unit, then the connection's LinearTransformation) folded into factor and offset."""
     fed = {}
+    out = []
     for c in scenario.connections:
         for element in (c.start_element, c.end_element):
             if element not in instances:
@@ -447,13 +507,56 @@ def check_connections(scenario: Scenario, instances: dict[str, Instance]) -> lis
         if c.end in fed:
             raise ScenarioError(f"{scenario.path}: input {c.end} is fed by both {fed[c.end]} and {c.start}")
         fed[c.end] = c.start
-    return scenario.connections
+        out.append(_with_unit_conversion(scenario, instances, c) if src.type == "Real" else c)
+    return out
+
+
+def _end_unit(scenario: Scenario, inst: Instance, connector: str) -> units.Unit | None:
+    """The unit of one end of a connection: the FMU variable's (from its UnitDefinitions), else the
+    .ssd connector's, else None (unitless)."""
+    var = inst.variables[connector]
+    name = units.unit_of_variable(var)
+    fmu_units = units.of_model_description(inst.model_description)
+    conn = next((k for k in scenario.component(inst.name).connectors if k.name == connector), None)
+    if conn is not None and conn.unit:
+        declared = conn.unit_definition or fmu_units.get(conn.unit) or units.Unit(conn.unit, None)
+        if name is not None:
+            fmu = fmu_units.get(name) or units.Unit(name, None)
+            if units.conversion(declared, fmu) is None:
+                raise ScenarioError(f"{scenario.path}: unit mismatch: connector {inst.name}.{connector} is "
+                                    f"[{conn.unit}] ({declared.dimension()}) but {inst.path.name} declares "
+                                    f"[{name}] ({fmu.dimension()})")
+        else:
+            return declared
+    if name is None:
+        return None
+    return fmu_units.get(name) or units.Unit(name, None)
+
+
+def _with_unit_conversion(scenario: Scenario, instances: dict[str, Instance], c):
+    src = _end_unit(scenario, instances[c.start_element], c.start_connector)
+    dst = _end_unit(scenario, instances[c.end_element], c.end_connector)
+    if c.suppress_unit_conversion or src is None or dst is None:
+        return c
+    ab = units.conversion(src, dst)
+    if ab is None:
+        raise ScenarioError(f"{scenario.path}: unit mismatch: connection {c.start} [{src.name}] "
+                            f"({src.dimension()}) -> {c.end} [{dst.name}] ({dst.dimension()}): "
+                            "the dimensions differ (suppressUnitConversion=\"true\" on the connection "
+                            "to connect them anyway)")
+    a, b = ab
+    if a == 1.0 and b == 0.0:
+        return c
+    return dataclasses.replace(c, factor=c.factor * a, offset=c.factor * b + c.offset)
 
 
 def parameter_values(scenario: Scenario, instances: dict[str, Instance],
                      overrides: dict[str, str | float]) -> dict[str, list[tuple[object, object]]]:
-    """(variable, value) pairs to set per component: .ssv values, then overrides, all checked."""
+    """(variable, value) pairs to set per component: .ssv values (converted to the FMU variable's
+    unit), then overrides, all checked: the variable can be set and is not a connected input, the
+    value has its type, an Integer fits in 32 bits, and values are within a declared min/max."""
     values: dict[str, dict[str, tuple[object, object]]] = {name: {} for name in instances}
+    fed = {c.end: c.start for c in scenario.connections}
     for comp in scenario.components:
         inst = instances[comp.name]
         where = f"{scenario.path.parent / (comp.parameter_sources[-1] if comp.parameter_sources else scenario.path.name)}"
@@ -461,11 +564,15 @@ def parameter_values(scenario: Scenario, instances: dict[str, Instance],
             if p.name not in inst.variables:
                 raise ScenarioError(f"{where}: unknown parameter '{comp.name}.{p.name}' (not in {inst.path.name})")
             var = inst.variables[p.name]
-            _check_settable(var, f"{where}: parameter '{comp.name}.{p.name}'", inst)
+            what = f"{where}: parameter '{comp.name}.{p.name}'"
+            _check_settable(var, what, inst, fed.get(f"{comp.name}.{p.name}"))
             if var.type != p.type and not (var.type == "Real" and p.type == "Integer"):
                 raise ScenarioError(f"{where}: type mismatch: parameter '{comp.name}.{p.name}' is {p.type} "
                                     f"but {inst.path.name} declares {var.type}")
-            values[comp.name][p.name] = (var, float(p.value) if var.type == "Real" else p.value)
+            value = float(p.value) if var.type == "Real" else p.value
+            if p.unit and var.type == "Real":
+                value = _convert_unit(value, p, var, inst, what)
+            values[comp.name][p.name] = (var, _check_range(value, var, what, inst))
     for full, raw in overrides.items():
         comp_name, _, var_name = full.partition(".")
         if comp_name not in instances or not var_name:
@@ -475,26 +582,58 @@ def parameter_values(scenario: Scenario, instances: dict[str, Instance],
         if var_name not in inst.variables:
             raise ScenarioError(f"--set {full}: unknown variable '{var_name}' (not in {inst.path.name})")
         var = inst.variables[var_name]
-        _check_settable(var, f"--set {full}", inst)
+        _check_settable(var, f"--set {full}", inst, fed.get(full))
         value = parse_value(str(raw), var.type, f"--set {full}") if isinstance(raw, str) else raw
         if var.type == "Real":
             value = float(value)
-        values[comp_name][var_name] = (var, value)
+        values[comp_name][var_name] = (var, _check_range(value, var, f"--set {full}", inst))
     return {name: list(v.values()) for name, v in values.items()}
 
 
-def _check_settable(var, where: str, inst: Instance) -> None:
+def _convert_unit(value: float, p, var, inst: Instance, what: str) -> float:
+    """An .ssv value in the parameter's unit, converted to the unit of the FMU variable."""
+    fmu_units = units.of_model_description(inst.model_description)
+    source = p.unit_definition or fmu_units.get(p.unit)
+    if source is None:
+        raise ScenarioError(f"{what}: unit '{p.unit}' is defined neither in the file's ssv:Units nor in "
+                            f"{inst.path.name}'s UnitDefinitions")
+    name = units.unit_of_variable(var)
+    target = (fmu_units.get(name) or units.Unit(name, None)) if name else units.Unit("1", (0.0,) * len(units.BASE))
+    ab = units.conversion(source, target)
+    if ab is None:
+        raise ScenarioError(f"{what}: unit mismatch: the value is in [{p.unit}] ({source.dimension()}) but "
+                            f"{inst.path.name} declares {var.name} in [{name or 'no unit'}] ({target.dimension()})")
+    return ab[0] * value + ab[1]
+
+
+def _check_range(value, var, what: str, inst: Instance):
+    """Refuse an Integer outside 32 bits (fmi2Integer would wrap it) and a value outside the
+    variable's declared min/max."""
+    if var.type == "Integer" and not isinstance(value, bool) and not INT_MIN <= value <= INT_MAX:
+        raise ScenarioError(f"{what}: value {value} does not fit an FMI Integer (32 bits: {INT_MIN} .. {INT_MAX})")
+    if var.type in ("Real", "Integer"):
+        for bound, ok in ((var.min, lambda b: value >= b), (var.max, lambda b: value <= b)):
+            if bound is not None and not ok(float(bound)):
+                raise ScenarioError(f"{what}: value {value} is outside [{var.min if var.min is not None else '-inf'}, "
+                                    f"{var.max if var.max is not None else 'inf'}] declared by {inst.path.name}")
+    return value
+
+
+def _check_settable(var, where: str, inst: Instance, source: str | None = None) -> None:
     if var.causality not in ("parameter", "input") or var.variability == "constant":
         raise ScenarioError(f"{where}: causality mismatch: {inst.path.name} declares it "
                             f"{var.causality} ({var.variability}); only parameters and inputs can be set")
+    if var.causality == "input" and source is not None:
+        raise ScenarioError(f"{where}: input is connected (fed by {source}); the master sets it from the "
+                            "connection, a start value would be ignored")
 
 
 # ---- instantiation --------------------------------------------------------------------------------
 
 def _instantiate(inst: Instance, workdirs: list) -> None:
-    unzipdir = tempfile.mkdtemp(prefix=f"emcosim-{inst.name}-")
+    unzipdir = str(tempdirs.make(inst.name))          # emcosim-PID-...: removed at the next start if killed
     workdirs.append(unzipdir)
-    extract(str(inst.path), unzipdir)
+    extract_archive(inst.path, unzipdir)             # within the archive limits (a zip bomb is refused)
     md = inst.model_description
 
     def logger(component, instance_name, status, category, message):
@@ -655,10 +794,22 @@ class _Stepper:
                     slots[s] = values[i]
         except FMICallException as exc:
             self._failed(transfer, exc)
+        except NonFiniteValue as exc:
+            raise SimulationError(exc.message(self.t)) from None
         if self.derivatives is not None and with_derivatives:
-            failure = self.derivatives.resolve(self.t, slots)
-            if failure is not None:
-                self._failed(*failure)
+            self._check_failure(self.derivatives_resolve())
+
+    def derivatives_resolve(self):
+        """Resolve the output derivatives at self.t (after the values): None, or (the transfer that
+        failed, its FMICallException); a derivative that is not finite ends the run."""
+        try:
+            return self.derivatives.resolve(self.t, self.slots)
+        except coupling.NonFiniteDerivative as exc:
+            raise SimulationError(exc.message(self.t)) from None
+
+    def _check_failure(self, failure) -> None:
+        if failure is not None:
+            self._failed(*failure)
 
     def _failed(self, transfer, exc: FMICallException):
         inst = transfer.inst

@@ -3,7 +3,17 @@
 Only the part of SSP the master uses: one flat System of FMU Components, their Connectors,
 Connections (optionally with a LinearTransformation), ParameterBindings to .ssv files (or inline
 ParameterValues), a DefaultExperiment, and the step size in the Open Simulation Platform's
-annotation (`osp:FixedStepAlgorithm baseStepSize`), which libcosim also reads.
+annotation (`osp:FixedStepAlgorithm baseStepSize`), which libcosim also reads. Units (ssd:Units,
+ssv:Units, `unit` on connectors and parameters) are read; the master converts with them.
+
+Files may be in any encoding XML allows (declared in the XML declaration or by a byte-order mark).
+An .ssp archive is unpacked with limits (`ArchiveLimits`: total size and number of files) and its
+.ssd may only reference files inside the archive unless `allow_external` is set.
+
+Written files also run in other SSP engines (docs/ssp-engines.md): the System carries, beside the
+OSP annotation, OpenModelica's (`oms:FixedStepMaster stepSize`, which OMSimulator needs to know the
+system is a fixed-step co-simulation), its name is an identifier (OMSimulator refuses '.' and '-'),
+and every .ssv parameter set is named PARAMETER_SET (ecos applies a set only when selected by name).
 
 Element prefixes are written exactly as `ssd:`, `ssc:`, `ssv:`: libcosim's parser matches the
 prefixed names literally. Reading is namespace-aware. Every error is a `ScenarioError` whose
@@ -12,24 +22,30 @@ message names the file and the element.
 from __future__ import annotations
 
 import atexit
+import codecs
 import math
+import os
 import re
 import shutil
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+from . import tempdirs
 from .errors import ScenarioError
+from .units import Unit, parse_units
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
 OSP_ANNOTATION = "com.opensimulationplatform"
+OMS_ANNOTATION = "org.openmodelica"
+PARAMETER_SET = "initialValues"       # the one name of every .ssv set: `ecos` applies the sets of the name it is given
 SSD_NAME = "SystemStructure.ssd"
 TYPES = ("Real", "Integer", "Boolean", "String")
 
@@ -39,6 +55,8 @@ class Connector:
     name: str
     kind: str                 # input, output, parameter, calculatedParameter, inout
     type: str                 # Real, Integer, Boolean, String
+    unit: str | None = None   # `unit` of its ssc:Real, if given
+    unit_definition: Unit | None = None      # from the .ssd's ssd:Units (None: not defined there)
 
 
 @dataclass
@@ -50,6 +68,7 @@ class Parameter:
     value: float | int | bool | str
     unit: str | None = None
     description: str | None = None          # written as an XML comment before the parameter
+    unit_definition: Unit | None = None      # from the .ssv's ssv:Units (None: not defined there)
 
 
 @dataclass
@@ -70,6 +89,7 @@ class Connection:
     end_connector: str
     factor: float = 1.0                      # ssc:LinearTransformation: end = factor * start + offset
     offset: float = 0.0
+    suppress_unit_conversion: bool = False   # SSP: only the LinearTransformation, no unit conversion
 
     @property
     def start(self) -> str:
@@ -104,9 +124,25 @@ class Scenario:
 
 # ---- reading --------------------------------------------------------------------------------------
 
-def resolve_path(path: str | Path, scenario_dirs: list[Path] | None = None) -> Path:
+@dataclass
+class ArchiveLimits:
+    """What an .ssp archive may unpack to. The defaults refuse a "zip bomb" (a small archive that
+    inflates to gigabytes) and an .ssd that points at files outside its archive (absolute paths,
+    `..`); the command line's --ssp-max-size, --ssp-max-files and --allow-external change them."""
+
+    max_bytes: int = 2 << 30                  # total unpacked size: 2 GiB
+    max_files: int = 10_000
+    allow_external: bool = False
+
+
+_archives: dict[Path, tuple[Path, ArchiveLimits]] = {}   # unpacked folder -> (its .ssp, the limits used)
+
+
+def resolve_path(path: str | Path, scenario_dirs: list[Path] | None = None,
+                 limits: ArchiveLimits | None = None) -> Path:
     """The .ssd file of a scenario given as an .ssd file, a folder holding SystemStructure.ssd,
-    an .ssp archive (extracted to a temporary folder), or a bare name looked up in scenario_dirs."""
+    an .ssp archive (unpacked to a temporary folder, within `limits`), or a bare name looked up in
+    scenario_dirs."""
     p = Path(path)
     if not p.exists() and scenario_dirs and len(p.parts) == 1:
         for d in scenario_dirs:
@@ -121,34 +157,69 @@ def resolve_path(path: str | Path, scenario_dirs: list[Path] | None = None) -> P
     if not p.is_file():
         raise ScenarioError(f"{path}: scenario not found (give an .ssd file, a scenario folder or an .ssp archive)")
     if p.suffix == ".ssp":
-        target = Path(tempfile.mkdtemp(prefix=f"emcosim-{p.stem}-"))
+        limits = limits or ArchiveLimits()
+        target = tempdirs.make(p.stem)
         atexit.register(shutil.rmtree, target, True)
-        try:
-            with zipfile.ZipFile(p) as z:
-                z.extractall(target)
-        except zipfile.BadZipFile as exc:
-            raise ScenarioError(f"{p}: not a valid .ssp archive ({exc})") from None
+        extract_archive(p, target, limits)
         if not (target / SSD_NAME).is_file():
             raise ScenarioError(f"{p}: archive has no {SSD_NAME}")
+        _archives[target.resolve()] = (p, limits)
         return target / SSD_NAME
     return p
 
 
+def extract_archive(archive: Path, target: Path, limits: ArchiveLimits | None = None) -> None:
+    """Unpack a zip archive (.ssp, .fmu) into `target`, refusing more than limits.max_files entries
+    or limits.max_bytes in total (declared sizes; Python's zipfile stops at the declared size of
+    each entry and checks its CRC, so an entry cannot inflate beyond what it declares)."""
+    limits = limits or ArchiveLimits()
+    try:
+        with zipfile.ZipFile(archive) as z:
+            entries = z.infolist()
+            if len(entries) > limits.max_files:
+                raise ScenarioError(f"{archive}: archive holds {len(entries)} files, more than the limit of "
+                                    f"{limits.max_files} (raise it with --ssp-max-files)")
+            size = sum(e.file_size for e in entries)
+            if size > limits.max_bytes:
+                raise ScenarioError(f"{archive}: archive unpacks to {size / 2**20:.0f} MiB, more than the limit of "
+                                    f"{limits.max_bytes / 2**20:.0f} MiB (raise it with --ssp-max-size)")
+            z.extractall(target)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError) as exc:
+        raise ScenarioError(f"{archive}: not a valid zip archive ({exc})") from None
+    except OSError as exc:
+        raise ScenarioError(f"{archive}: cannot unpack to {target}: {exc.strerror or exc}") from None
+
+
+def _check_inside(ssd: Path, reference: str, what: str) -> None:
+    """Refuse a reference of an .ssd unpacked from an .ssp that leaves the archive."""
+    root = ssd.parent.resolve()
+    if root not in _archives:
+        return
+    archive, limits = _archives[root]
+    if limits.allow_external:
+        return
+    target = (root / reference).resolve()
+    if Path(reference).is_absolute() or "://" in reference or not target.is_relative_to(root):
+        raise ScenarioError(f"{archive}: {what} '{reference}' points outside the archive "
+                            "(allow it with --allow-external)")
+
+
 def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
-                  fmu_dir: str | Path | None = None) -> Scenario:
+                  fmu_dir: str | Path | None = None, limits: ArchiveLimits | None = None) -> Scenario:
     """Parse a scenario (see `resolve_path`) with its .ssv parameter files. With `fmu_dir`, every
     component's FMU is taken from that folder (same file name) instead of its `source` path."""
-    ssd = resolve_path(path, scenario_dirs)
-    root = _parse(ssd)
+    ssd = resolve_path(path, scenario_dirs, limits)
+    root, notes = _parse(ssd, comments=True)
     if root.tag != _q("ssd", "SystemStructureDescription"):
         raise ScenarioError(f"{ssd}: root element is {root.tag}, expected ssd:SystemStructureDescription")
     system = _child(root, "ssd", "System", ssd)
+    units = _units(root.find("ssd:Units", NS), ssd)
     components = []
     elements = system.find("ssd:Elements", NS)
     for el in [] if elements is None else elements:
         if el.tag != _q("ssd", "Component"):
             raise ScenarioError(f"{ssd}: element {el.tag} is not supported (only ssd:Component FMUs)")
-        components.append(_read_component(el, ssd))
+        components.append(_read_component(el, ssd, units, check_source=fmu_dir is None))
     names = [c.name for c in components]
     if len(set(names)) != len(names):
         raise ScenarioError(f"{ssd}: duplicate component names in {names}")
@@ -159,7 +230,9 @@ def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
             _attr(el, "startElement", ssd), _attr(el, "startConnector", ssd),
             _attr(el, "endElement", ssd), _attr(el, "endConnector", ssd),
             factor=_float(lt.get("factor", "1"), ssd, "LinearTransformation factor") if lt is not None else 1.0,
-            offset=_float(lt.get("offset", "0"), ssd, "LinearTransformation offset") if lt is not None else 0.0))
+            offset=_float(lt.get("offset", "0"), ssd, "LinearTransformation offset") if lt is not None else 0.0,
+            suppress_unit_conversion=_bool(el.get("suppressUnitConversion", "false"), ssd,
+                                           "Connection suppressUnitConversion")))
     scenario = Scenario(name=root.get("name") or ssd.parent.name, path=ssd, components=components,
                         connections=connections, description=root.get("description") or system.get("description"))
     experiment = root.find("ssd:DefaultExperiment", NS)
@@ -171,7 +244,7 @@ def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
                                "/osp:Algorithm/osp:FixedStepAlgorithm", NS)
         if algo is not None:
             scenario.step_size = _float(_attr(algo, "baseStepSize", ssd), ssd, "baseStepSize")
-    scenario.notes = _comments(ssd)
+    scenario.notes = notes
     if fmu_dir is not None:
         for comp in components:
             comp.source = Path(fmu_dir).resolve() / comp.source.name
@@ -189,37 +262,42 @@ def read_parameter_set(path: Path) -> dict[str, Parameter]:
     root = _parse(path)
     if root.tag != _q("ssv", "ParameterSet"):
         raise ScenarioError(f"{path}: root element is {root.tag}, expected ssv:ParameterSet")
-    return _read_parameters(root, path)
+    return _read_parameters(root, path, _units(root.find("ssv:Units", NS), path))
 
 
-def _read_component(el: ET.Element, ssd: Path) -> Component:
+def _read_component(el: ET.Element, ssd: Path, units: dict[str, Unit], check_source: bool = True) -> Component:
     name = _attr(el, "name", ssd)
     source = _attr(el, "source", ssd)
+    if check_source:
+        _check_inside(ssd, source, f"component '{name}': source")
     comp = Component(name=name, source=(ssd.parent / source).resolve(), description=el.get("description"))
     for c in el.findall("ssd:Connectors/ssd:Connector", NS):
         types = [t for t in TYPES if c.find(f"ssc:{t}", NS) is not None]
         if len(types) != 1:
             raise ScenarioError(f"{ssd}: connector {name}.{c.get('name')} needs exactly one of "
                                 f"ssc:{', ssc:'.join(TYPES)}")
-        comp.connectors.append(Connector(_attr(c, "name", ssd), _attr(c, "kind", ssd), types[0]))
+        unit = c.find(f"ssc:{types[0]}", NS).get("unit")
+        comp.connectors.append(Connector(_attr(c, "name", ssd), _attr(c, "kind", ssd), types[0],
+                                         unit=unit, unit_definition=units.get(unit) if unit else None))
     for binding in el.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS):
         prefix = binding.get("prefix", "")
         src = binding.get("source")
         if src is not None:
+            _check_inside(ssd, src, f"component '{name}': parameter binding")
             comp.parameter_sources.append(src)
             values = read_parameter_set(ssd.parent / src)
         else:
             inline = binding.find("ssd:ParameterValues/ssv:ParameterSet", NS)
             if inline is None:
                 raise ScenarioError(f"{ssd}: ParameterBinding of '{name}' has neither a source nor ParameterValues")
-            values = _read_parameters(inline, ssd)
+            values = _read_parameters(inline, ssd, _units(inline.find("ssv:Units", NS), ssd))
         for pname, p in values.items():                 # later bindings take priority (SSP)
             p.name = pname[len(prefix):] if prefix and pname.startswith(prefix) else pname
             comp.parameters[p.name] = p
     return comp
 
 
-def _read_parameters(root: ET.Element, path: Path) -> dict[str, Parameter]:
+def _read_parameters(root: ET.Element, path: Path, units: dict[str, Unit]) -> dict[str, Parameter]:
     params = {}
     for p in root.findall("ssv:Parameters/ssv:Parameter", NS):
         name = _attr(p, "name", path)
@@ -228,9 +306,23 @@ def _read_parameters(root: ET.Element, path: Path) -> dict[str, Parameter]:
             raise ScenarioError(f"{path}: parameter {name} needs exactly one of ssv:{', ssv:'.join(TYPES)}")
         v = p.find(f"ssv:{kinds[0]}", NS)
         raw = _attr(v, "value", path)
+        unit = v.get("unit")
         params[name] = Parameter(name, kinds[0], parse_value(raw, kinds[0], f"{path}: parameter {name}"),
-                                 unit=v.get("unit"))
+                                 unit=unit, unit_definition=units.get(unit) if unit else None)
     return params
+
+
+def _units(element: ET.Element | None, path: Path) -> dict[str, Unit]:
+    try:
+        return parse_units(element, NS, str(path))
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
+
+
+def _bool(raw: str, path: Path, what: str) -> bool:
+    if raw.strip() not in ("true", "false", "1", "0"):
+        raise ScenarioError(f"{path}: {what} = {raw!r} is not a boolean (true or false)")
+    return raw.strip() in ("true", "1")
 
 
 def parse_value(raw: str, type_: str, where: str) -> float | int | bool | str:
@@ -249,18 +341,66 @@ def parse_value(raw: str, type_: str, where: str) -> float | int | bool | str:
         raise ScenarioError(f"{where}: value {raw!r} is not a valid {type_}") from None
 
 
-def _parse(path: Path) -> ET.Element:
+class _Comments(ET.TreeBuilder):
+    """A tree builder that also collects every comment (those before the root element too)."""
+
+    def __init__(self, insert_comments: bool = False):
+        super().__init__(insert_comments=insert_comments)
+        self.comments: list[str] = []
+
+    def comment(self, text):
+        self.comments.append(" ".join(text.split()))
+        return super().comment(text)
+
+
+def _parse(path: Path, comments: bool = False, insert_comments: bool = False):
+    """The root element of an XML file (and with `comments`, its comments, whitespace collapsed;
+    with `insert_comments`, the comments inside the root element are kept in the tree).
+    Any encoding XML allows is read: expat decodes UTF-8, UTF-16 and ISO-8859-1 itself; for others
+    declared in the XML declaration (windows-1252, Shift_JIS, ...) the text is decoded here."""
     try:
-        return ET.parse(path).getroot()
+        data = Path(path).read_bytes()
     except FileNotFoundError:
         raise ScenarioError(f"{path}: file not found") from None
-    except ET.ParseError as exc:
-        raise ScenarioError(f"{path}: malformed XML ({exc})") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    target = _Comments(insert_comments)
+    try:
+        parser = ET.XMLParser(target=target)
+        parser.feed(data)
+        root = parser.close()
+    except (ET.ParseError, ValueError) as exc:          # ValueError: "multi-byte encodings are not supported"
+        text = _decode_declared(data)
+        if text is None:
+            raise ScenarioError(f"{path}: malformed XML ({exc})") from None
+        target = _Comments(insert_comments)
+        try:
+            parser = ET.XMLParser(target=target)
+            parser.feed(text)
+            root = parser.close()
+        except ET.ParseError as exc2:
+            raise ScenarioError(f"{path}: malformed XML ({exc2})") from None
+    return (root, target.comments) if comments else root
 
 
-def _comments(path: Path) -> list[str]:
-    """The XML comments of a file (before and inside the root), whitespace collapsed."""
-    return [" ".join(c.split()) for c in re.findall(r"<!--(.*?)-->", path.read_text(), re.S)]
+_DECLARATION = re.compile(rb"""^<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z][A-Za-z0-9._-]*)["']""")
+
+
+def _decode_declared(data: bytes) -> str | None:
+    """The text of an XML document in an encoding expat does not know, decoded with Python's codec
+    of the declared encoding and its declaration rewritten to UTF-8; None if there is nothing to do
+    (no such declaration, unknown codec, or bytes that are not in that encoding)."""
+    match = _DECLARATION.match(data)
+    if not match:
+        return None
+    try:
+        name = codecs.lookup(match.group(1).decode("ascii")).name
+        if name in ("utf-8", "utf-16", "iso8859-1", "ascii"):
+            return None                        # expat knows these: the error is in the XML itself
+        text = data.decode(name)
+    except (LookupError, UnicodeDecodeError):
+        return None
+    return text.replace(match.group(1).decode("ascii"), "UTF-8", 1)
 
 
 def _q(prefix: str, tag: str) -> str:
@@ -327,16 +467,25 @@ def parameter_set_xml(name: str, parameters: list[Parameter], notes: list[str] =
     return "\n".join(lines)
 
 
+def identifier(name: str) -> str:
+    """`name` as an identifier (letters, digits, '_'; starting with a letter), as OMSimulator wants
+    model and system names: every other character becomes '_'."""
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", name)
+    return ident if ident[:1].isalpha() else f"s_{ident}"
+
+
 def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float) -> str:
     """The text of an .ssd file. `sources` maps component names to the FMU paths as written
     (relative to the .ssd); each component binds the .ssv files in its `parameter_sources`.
-    `scenario.notes` become XML comments at the top, `description`s become attributes."""
+    `scenario.notes` become XML comments at the top, `description`s become attributes. The System
+    is named `identifier(scenario.name)` and carries OpenModelica's fixed-step annotation; the
+    DefaultExperiment carries the OSP one (both give `step_size`)."""
     ns = " ".join(f'xmlns:{p}="{u}"' for p, u in NS.items())
     desc = f' description="{_esc(scenario.description)}"' if scenario.description else ""
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
     lines += [f"<!-- {_comment(n)} -->" for n in scenario.notes]
     lines.append(f'<ssd:SystemStructureDescription {ns} version="1.0" name="{_esc(scenario.name)}"{desc}>')
-    lines.append(f'  <ssd:System name="{_esc(scenario.name)}">')
+    lines.append(f'  <ssd:System name="{_esc(identifier(scenario.name))}">')
     lines.append("    <ssd:Elements>")
     for c in scenario.components:
         cdesc = f' description="{_esc(c.description)}"' if c.description else ""
@@ -363,6 +512,7 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
         else:
             lines.append(f"      <ssd:Connection {attrs}/>")
     lines.append("    </ssd:Connections>")
+    lines += ["    <ssd:Annotations>", *oms_annotation(step_size, "      "), "    </ssd:Annotations>"]
     lines.append("  </ssd:System>")
     stop = f' stopTime="{scenario.stop_time!r}"' if scenario.stop_time is not None else ""
     lines.append(f'  <ssd:DefaultExperiment startTime="{scenario.start_time!r}"{stop}>')
@@ -374,6 +524,20 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
     lines.append("  </ssd:DefaultExperiment>")
     lines += ["</ssd:SystemStructureDescription>", ""]
     return "\n".join(lines)
+
+
+def oms_annotation(step_size: float, indent: str = "") -> list[str]:
+    """OpenModelica's annotation of a fixed-step co-simulation system (what OMSimulator writes and
+    reads: it must be the first ssc:Annotation of the System's ssd:Annotations)."""
+    return [indent + line for line in [
+        f'<ssc:Annotation type="{OMS_ANNOTATION}">',
+        "  <oms:Annotations>",
+        "    <oms:SimulationInformation>",
+        f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="0.0001" '
+        'relativeTolerance="0.0001"/>',
+        "    </oms:SimulationInformation>",
+        "  </oms:Annotations>",
+        "</ssc:Annotation>"]]
 
 
 def _esc(s: str) -> str:

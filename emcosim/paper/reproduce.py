@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import signal
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -18,10 +19,11 @@ import numpy as np
 
 from . import report
 from .certify import design_from_scenario
-from ..engine.errors import ScenarioError, SimulationError
+from ..engine import stopping
+from ..engine.errors import Interrupted, ScenarioError, SimulationError
 from ..engine.master import simulate
 from ..progress import ProgressBar
-from ..engine.results import Result
+from ..engine.results import OutputFolder, Result, write_csv
 from ..engine.ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,15 +50,30 @@ LABELS = {
 }
 
 
+def plant_and_controller(scenario) -> tuple[str, str]:
+    """Names of the scenario's plant and controller components (by their FMUs' model names)."""
+    from components import catalog
+
+    by_model = {Path(c.source).stem: c.name for c in scenario.components}
+    plant = next((by_model[m] for m in catalog.PLANTS if m in by_model), None)
+    controller = next((by_model[m] for m in catalog.GAINS if m in by_model), None)
+    if plant is None or controller is None:
+        raise ValueError(f"{scenario.path}: no plant and controller FMU of this suite")
+    return plant, controller
+
+
 def run_from_result(name: str, label: str, scenario, result) -> report.Run:
     """A report.Run from the master's recorded columns plus the design's target eta*(t)."""
     d = design_from_scenario(scenario)
+    plant, controller = plant_and_controller(scenario)
     t = result.time
     jets = [None if d.reference is None else d.reference.jet(tt) for tt in t]
     eta_star = np.array([d.controller.target(j) for j in jets])
-    plant = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
-    return report.Run(name, plant, label, t, result["plant.q"], result["plant.p"], result["plant.x_e"],
-                      result["controller.u"], eta_star)
+    model = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
+    H = result[f"{plant}.H"] if f"{plant}.H" in result.columns else None
+    return report.Run(name, model, label, t, result[f"{plant}.q"], result[f"{plant}.p"], result[f"{plant}.x_e"],
+                      result[f"{controller}.u"], eta_star,
+                      horizon=float(scenario.stop_time) if scenario.stop_time is not None else float("nan"), H=H)
 
 
 def _simulate_case(name: str, stop_time: float | None, fmu_dir: str | Path | None,
@@ -82,17 +99,21 @@ def _worker(name: str, stop_time, fmu_dir, queue) -> tuple[list[str], list[list[
 def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | None = None,
                         out=None, fmu_dir: str | Path | None = None, jobs: int | None = None,
                         failed: dict[str, SimulationError | ScenarioError] | None = None,
-                        ) -> tuple[dict[str, report.Run], dict[str, float]]:
+                        finished: dict | None = None) -> tuple[dict[str, report.Run], dict[str, float]]:
     """Run each scenario (at its default step and horizon unless stop_time is given), `jobs` at a
     time in worker processes (default: one per core; 1 runs them here, one after the other).
     Progress goes to `out`: which scenarios run and how far each is. A scenario that fails does not
     stop the others: its error goes into `failed` (by name) when a dict is given, else it is raised
-    after the other runs."""
+    after the other runs. `finished` (a dict), if given, receives (columns, rows, wall time) of each
+    scenario as it finishes: what was computed survives an interruption."""
     out = sys.stderr if out is None else out
     jobs = max(1, min(len(names), jobs or os.cpu_count() or 1))
     errors: dict = {} if failed is None else failed
-    results = _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) if jobs > 1 else \
-        _run_serial(names, stop_time, fmu_dir, out, errors)
+    results: dict = {} if finished is None else finished
+    if jobs > 1:
+        _run_parallel(names, stop_time, fmu_dir, jobs, out, errors, results)
+    else:
+        _run_serial(names, stop_time, fmu_dir, out, errors, results)
     if failed is None and errors:
         raise next(iter(errors.values()))
     runs, walls = {}, {}
@@ -102,8 +123,21 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
         columns, rows, walls[name] = results[name]
         result = Result(columns)
         result.rows = rows
-        runs[role] = run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name), result)
+        runs[role] = with_conditions(run_from_result(name, LABELS.get(role, name), read_scenario(SCENARIOS / name),
+                                                     result), read_scenario(SCENARIOS / name))
     return runs, walls
+
+
+def with_conditions(run: report.Run, scenario) -> report.Run:
+    """The run with the conditions of its theorem that its design violates in `notes`, and named in
+    its label (e.g. maglev cases 1 and 3: K_e < 0, erratum 4)."""
+    from . import design_facts
+
+    violated = design_facts.violated_conditions(design_facts.design(scenario))
+    run.notes = [text for _, text in violated]
+    if violated:
+        run.label += "; violates " + ", ".join(name.split(" (")[0] for name, _ in violated)
+    return run
 
 
 def _done(i: int, n: int, name: str, outcome) -> str:
@@ -113,12 +147,13 @@ def _done(i: int, n: int, name: str, outcome) -> str:
     return f"[{i}/{n}] {name}: {len(outcome[1])} communication points in {outcome[2]:.1f} s"
 
 
-def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
-    results = {}
+def _run_serial(names, stop_time, fmu_dir, out, errors, results) -> dict:
     for i, name in enumerate(names.values(), 1):
         bar = ProgressBar(f"[{i}/{len(names)}] {name}", stream=out)
         try:
             outcome = results[name] = _simulate_case(name, stop_time, fmu_dir, bar)
+        except Interrupted:
+            raise
         except ScenarioError as exc:
             outcome = errors[name] = exc
         finally:
@@ -127,43 +162,64 @@ def _run_serial(names, stop_time, fmu_dir, out, errors) -> dict:
     return results
 
 
-def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors) -> dict:
-    """Longest runs first (by communication steps), in `jobs` worker processes; a status line of
-    every running scenario's progress (redrawn on a terminal, every few seconds otherwise)."""
-    order = sorted(names.values(), key=lambda n: -_n_steps(n, stop_time))
+def _ignore_sigint() -> None:
+    """Worker processes leave Ctrl-C to the parent (a terminal sends it to all of them): the parent
+    stops them with SIGTERM if the run is interrupted."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_parallel(names, stop_time, fmu_dir, jobs, out, errors, results) -> dict:
+    """Longest runs first (by communication steps), in `jobs` worker processes; one bar (tqdm, on a
+    terminal only) of the communication steps done over all scenarios, and a line per finished one."""
+    steps = {n: _n_steps(n, stop_time) for n in names.values()}
+    order = sorted(names.values(), key=lambda n: -steps[n])
     context = multiprocessing.get_context("spawn")              # a fresh interpreter per worker (pythonfmu)
-    results, fraction = {}, {}
-    tty = getattr(out, "isatty", lambda: False)()
-    last_line, finished = 0.0, 0
-    with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context) as pool:
-        queue = manager.Queue()
-        futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
-        pending = set(futures)
-        print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
-        while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            while not queue.empty():
-                name, f = queue.get()
-                fraction[name] = f
-            for future in done:
-                name = futures[future]
+    fraction = {}
+    finished = 0
+    print(f"running {len(names)} scenarios in {jobs} worker processes", file=out, flush=True)
+    bar = ProgressBar("reproduce", stream=out)
+    try:
+        with context.Manager() as manager, ProcessPoolExecutor(jobs, mp_context=context,
+                                                               initializer=_ignore_sigint) as pool:
+            try:
+                queue = manager.Queue()
+                futures = {pool.submit(_worker, n, stop_time, fmu_dir, queue): n for n in order}
+                pending = set(futures)
+            except BaseException:
+                _stop_workers(pool)
+                raise
+            while pending:
                 try:
-                    outcome = results[name] = future.result()
-                except ScenarioError as exc:
-                    outcome = errors[name] = exc
-                except Exception as exc:                           # a worker died (e.g. the host crashed)
-                    outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
-                fraction.pop(name, None)
-                finished += 1
-                print(("\r\033[K" if tty else "") + _done(finished, len(names), name, outcome),
-                      file=out, flush=True)
-            now = time.monotonic()
-            if fraction and (tty or now - last_line > 5.0):
-                line = "  ".join(f"{n} {100 * f:.0f}%" for n, f in fraction.items())
-                out.write(f"\r\033[Krunning: {line}" if tty else f"running: {line}\n")
-                out.flush()
-                last_line = now
+                    stopping.check()                               # Ctrl-C / SIGTERM: stop the workers
+                    done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                except BaseException:
+                    _stop_workers(pool)
+                    raise
+                while not queue.empty():
+                    name, f = queue.get()
+                    fraction[name] = f
+                for future in done:
+                    name = futures[future]
+                    try:
+                        outcome = results[name] = future.result()
+                    except ScenarioError as exc:
+                        outcome = errors[name] = exc
+                    except Exception as exc:                       # a worker died (e.g. the host crashed)
+                        outcome = errors[name] = ScenarioError(f"{name}: worker process failed: {exc!r}")
+                    fraction[name] = 1.0
+                    finished += 1
+                    bar.write(_done(finished, len(names), name, outcome))
+                bar(sum(steps[n] * f for n, f in fraction.items()) / sum(steps.values()))
+    finally:
+        bar.close()
     return results
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel what has not started and end the running scenarios' processes (SIGTERM)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in multiprocessing.active_children():
+        process.terminate()
 
 
 def _n_steps(name: str, stop_time: float | None) -> float:
@@ -182,47 +238,149 @@ def ensure_fmus(out=sys.stderr) -> None:
 
 
 def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:
-    files = []
+    """The paper's Figs. 1-4 (PNG and SVG) from the runs there are."""
+    return [f for spec, stem in figure_specs(runs) for f in report.save_figure(spec, out / stem)]
+
+
+def figure_specs(runs: dict[str, report.Run]) -> list[tuple[report.FigureSpec, str]]:
+    """(spec, file stem) of each paper figure the runs allow."""
+    specs = []
     if {"mems_reg_0", "mems_reg_1"} <= runs.keys():
-        files += report.figure_states([runs["mems_reg_0"], runs["mems_reg_1"]],
-                                      "MEMS regulation to q_d = 30 um without and with coupled damping (Theorem 2, Fig. 1)",
-                                      out / "fig1_mems_regulation", "q_d (eta_d)")
+        specs.append((report.states_figure([runs["mems_reg_0"], runs["mems_reg_1"]],
+                                           "MEMS regulation to q_d = 30 µm without and with coupled damping "
+                                           "(Theorem 2, Fig. 1)", "q_d (eta_d)"), "fig1_mems_regulation"))
     if {"mems_track_0", "mems_track_1"} <= runs.keys():
-        files += report.figure_states([runs["mems_track_0"], runs["mems_track_1"]],
-                                      "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping (Fig. 2)",
-                                      out / "fig2_mems_tracking", "q* (eta*)")
+        specs.append((report.states_figure([runs["mems_track_0"], runs["mems_track_1"]],
+                                           "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping "
+                                           "(Fig. 2)", "q* (eta*)"), "fig2_mems_tracking"))
     maglev = [runs[f"maglev_{i}"] for i in range(1, 5) if f"maglev_{i}" in runs]
     if len(maglev) == 4:
-        files += report.figure_states(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, Fig. 3)",
-                                      out / "fig3_maglev_tracking", "q* (eta*)")
-        files += report.figure_error_norms(maglev, runs["maglev_3"], out / "fig4_maglev_error_norms")
-    return files
+        specs.append((report.states_figure(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, "
+                                                   "Fig. 3)", "q* (eta*)"), "fig3_maglev_tracking"))
+        specs.append((report.error_norm_figure(maglev, runs["maglev_3"]), "fig4_maglev_error_norms"))
+    return specs
+
+
+def design_facts_of(names: dict[str, str] = PAPER_CASES) -> dict:
+    """What the claims need beyond the runs (emcosim.paper.design_facts): each role's dominant
+    linearized mode, Theorem 1 (iii) at the paper's gains and on a grid of gains, and the damping
+    of the linearized maglev loop over R_e_bar. About 10 s; no simulation."""
+    from components import maglev
+    from . import design_facts as facts
+
+    scen = {role: read_scenario(SCENARIOS / name) for role, name in names.items()}
+    modes = {role: facts.dominant_mode(facts.design(s)) for role, s in scen.items()}
+    iii = {}
+    for plant, prefix, grid in [
+            ("MEMS", "mems", {"controller.rbar_e": [1.0, 10.0, 100.0], "controller.D_d": [-4.0, -1.0, -0.4, 0.0]}),
+            ("Maglev", "maglev", {"controller.R_e_bar": [0.82, 2.82, 10.0], "controller.k_c": [1.0, 20.0, 200.0],
+                                  "controller.D_d": [maglev.D_d_from_paper(D) for D in (0.0, -1.0, -2.0)]})]:
+        theirs = {s.name: facts.theorem1_iii(facts.design(s)) for role, s in scen.items() if role.startswith(prefix)}
+        tracking = next(s for role, s in scen.items() if role.startswith(prefix) and "track" in s.name)
+        iii[plant] = {"paper": theirs, "grid": grid, "search": facts.theorem1_iii_search(tracking, grid)}
+    overdamping = []
+    if "maglev_1" in scen:
+        for D in (0.0, -1.0):
+            for R in (0.82, 2.82, 5.0, 10.0, 20.0, 50.0):
+                d = facts.design(scen["maglev_1"], {"controller.D_d": maglev.D_d_from_paper(D), "controller.R_e_bar": R})
+                overdamping.append({"D_d paper": D, "R_e_bar": R, **facts.dominant_mode(d)})
+    return {"modes": modes, "iii": iii, "overdamping": overdamping}
+
+
+def choices(names: dict[str, str] = PAPER_CASES) -> list[str]:
+    """'Choices the paper does not make' as short paragraphs, from the scenario table
+    (emcosim.paper.scenarios): first what several scenarios share (one paragraph per group), then one
+    per scenario (what it is, its own choices, its horizon and default step)."""
+    from .scenarios import cases
+
+    table = [c for c in cases() if c.name in names.values()]
+    holders: dict[str, list[str]] = {}
+    for c in table:
+        for n in c.notes:
+            holders.setdefault(n, []).append(c.name)
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for note, who in holders.items():
+        if len(who) > 1:
+            groups.setdefault(tuple(who), []).append(note)
+    out = []
+    for plant in dict.fromkeys(c.plant for c in table):
+        everyone = [c.name for c in table if c.plant == plant]
+        for who, notes in groups.items():
+            if who[0] in everyone:
+                head = f"All {plant} scenarios" if list(who) == everyone else ", ".join(who)
+                out.append(f"**{head}.** " + " ".join(_sentence(n) for n in notes))
+        for c in (c for c in table if c.plant == plant):
+            own = [n for n in c.notes if len(holders[n]) == 1]
+            horizon = "" if any("Horizon" in n for n in c.notes) else f"Horizon {c.stop_time:g} s, "
+            out.append(f"**{c.name}.** {_sentence(c.description)} " + "".join(f"{_sentence(n)} " for n in own)
+                       + f"{horizon}{'d' if horizon else 'D'}efault communication step {c.step_size:g} s.")
+    return out
+
+
+def _sentence(text: str) -> str:
+    text = text.strip()
+    return text if text.endswith(".") else text + "."
+
+
+def shortened_banner(runs: dict[str, report.Run]) -> str:
+    short = {r.name: r for r in runs.values() if r.shortened}
+    if not short:
+        return ""
+    return (f"Shortened runs: {len(short)} of {len(runs)} scenarios were cut short ("
+            + ", ".join(f"{n} to {r.t[-1]:g} s of {r.horizon:g} s" for n, r in short.items())
+            + "). Their figures and metrics cover the shortened horizon only, and every verdict that needs the "
+              "full horizon is 'not decided'.")
 
 
 def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, out=None,
               fmu_dir: str | Path | None = None, jobs: int | None = None) -> dict:
-    """Run every paper scenario and write figures, metrics and claims into out_dir. A failed
-    scenario leaves out what needs it (its rows up to the failure go to NAME.partial.csv) and ends
-    in a ScenarioError naming it, after everything else is written."""
+    """Run every paper scenario and write figures, metrics and claims into out_dir.
+
+    The output folder is checked before any scenario runs, and written as a whole: everything goes
+    into a fresh folder beside it that replaces out_dir only when every scenario ran (see
+    results.OutputFolder). A failed scenario leaves out what needs it (its rows up to the failure go
+    to NAME.partial.csv) and ends in a ScenarioError naming it, after everything else is written
+    into OUT.partial; an interruption keeps the finished scenarios' rows there (NAME.csv). out_dir
+    itself is then left as it was."""
     out = sys.stderr if out is None else out
-    out_path = Path(out_dir)
-    out_path.mkdir(parents=True, exist_ok=True)
+    folder = OutputFolder(out_dir, recognize=("runs.json", "claims.md"))
+    for note in folder.notes:
+        print(f"note: {note}", file=out)
+    finished: dict = {}
+    try:
+        with folder:
+            try:
+                content = _reproduce_into(folder.path, stop_time, out, fmu_dir, jobs, finished)
+            except (Interrupted, KeyboardInterrupt):
+                for name, (columns, rows, _) in finished.items():       # keep what finished
+                    write_csv(folder.path / f"{name}.csv", ["time", *columns], rows)
+                raise
+    except ScenarioError as exc:
+        if folder.final is not None:                     # None: replacing out_dir failed (the error says)
+            exc.args = (f"{exc}; the results so far are in {folder.final} ({out_dir} was left as it was)",)
+        raise
+    except KeyboardInterrupt:
+        print(f"interrupted: the results so far are in {folder.final} ({out_dir} was left as it was)", file=out)
+        raise
+    print(f"results in {folder.final}", file=out)
+    return content
+
+
+def _reproduce_into(out_path: Path, stop_time, out, fmu_dir, jobs, finished: dict) -> dict:
     failed: dict[str, ScenarioError] = {}
-    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed)
+    runs, walls = run_paper_scenarios(stop_time=stop_time, out=out, fmu_dir=fmu_dir, jobs=jobs, failed=failed,
+                                      finished=finished)
     figures = write_figures(runs, out_path)
-    notes = []
-    for name in PAPER_CASES.values():
-        notes += [n for n in read_scenario(SCENARIOS / name).notes if n not in notes and "Generated by" not in n]
-    content = report.write_reports({r.name: r for r in runs.values()},
-                                   {role: runs[role].name for role in runs}, out_path, notes)
+    content = report.write_reports({r.name: r for r in runs.values()}, {role: runs[role].name for role in runs},
+                                   out_path, choices(), design_facts_of(), shortened_banner(runs))
     (out_path / "runs.json").write_text(json.dumps({"wall_time_s": walls,
                                                     "failed": {n: str(e) for n, e in failed.items()}}, indent=1))
-    print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json to {out_path}", file=out)
+    print(f"wrote {len(figures)} figure files, metrics.md/json, claims.md/json", file=out)
     if failed:
         for name, exc in failed.items():
             partial = getattr(exc, "result", None)
             if partial is not None and len(partial):
-                partial.write_csv(out_path / f"{name}.partial.csv")
+                partial.write_csv(out_path / f"{name}.partial.csv", note=f"emcosim: PARTIAL result of {name}: {exc}")
         raise ScenarioError(f"{len(failed)} of {len(PAPER_CASES)} scenarios failed: "
                             + "; ".join(f"{n}: {' '.join(str(e).split())}" for n, e in failed.items()))
     return content

@@ -8,18 +8,26 @@ drawn at random (`--sample plant.m=LOW:HIGH --samples N`): every grid point is t
 N plant draws, so designs are compared on the same plants.
 
 Engine: Dask. By default a local cluster of worker processes on this machine (one per core, one
-thread each: each process hosts one pythonfmu interpreter); with `--scheduler tcp://HOST:PORT` the
-runs go to a running `dask scheduler` and its workers instead. Each worker thread keeps the FMUs of
+thread each: each process hosts one pythonfmu interpreter), reachable only by this process: it
+listens on 127.0.0.1 with TLS and temporary credentials made for this sweep (dask's
+`Security.temporary()`: a self-signed key and certificate that exist only in this process's memory
+and its workers'; scheduler and workers require the client to present it), so another local user or
+process can neither submit nor run code on it. With `--scheduler tls://HOST:PORT` the runs go to a
+running `dask scheduler` and its workers instead, with the cluster's credentials given by
+`--tls-ca-file`, `--tls-cert`, `--tls-key` (as for `dask scheduler`; without them, dask's own
+configuration, `distributed.comm.tls`, applies). Each worker thread keeps the FMUs of
 the scenario loaded and resets them between runs (`emcosim.engine.session`). Workers must see the same
 paths as the machine that starts the sweep (scenario, FMUs) and have emcosim installed.
 
 A run that fails (a gain the controller refuses, an FMU error) becomes a row with its error message;
-the sweep goes on.
+the sweep goes on. Finished rows are appended to the output folder's sweep.csv as they arrive
+(`RowStream`), so an interrupted sweep (Ctrl-C, SIGTERM) keeps them.
 """
 from __future__ import annotations
 
 import atexit
 import copy
+import csv
 import itertools
 import sys
 import threading
@@ -101,13 +109,21 @@ def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, 
     return [{**dict(zip([n for n, _ in grid], combo)), **draw} for combo in combos for draw in draws]
 
 
-def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float]) -> dict[str, str]:
+def check_parameters(scenario: Scenario, names: list[str], example: dict[str, float],
+                     options: dict[str, str] | None = None) -> dict[str, str]:
     """Check every swept name with the master's own checks (component and variable exist, can be set,
-    is Real) and return its unit from the FMU's modelDescription ('' if none)."""
+    is Real) and return its unit from the FMU's modelDescription ('' if none). `options` names the
+    command-line option of each name (--grid or --sample) for the error message."""
     from ..engine import master
     from ..engine.session import check_start_values
 
-    check_start_values(scenario, {n: example[n] for n in names})
+    for name in names:
+        option = (options or {}).get(name, "--grid/--sample")
+        try:
+            check_start_values(scenario, {name: example[name]})
+        except ScenarioError as exc:                  # the master says --set; the user typed --grid/--sample
+            text = str(exc)
+            raise ScenarioError(option + text[len("--set"):] if text.startswith("--set ") else text) from None
     instances = master.load(scenario)
     units = {}
     for name in names:
@@ -193,22 +209,41 @@ def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], stop_time
 
 # ---- the engine ----------------------------------------------------------------------------------
 
+def security(tls_ca_file: str | None = None, tls_cert: str | None = None, tls_key: str | None = None):
+    """The dask Security to reach a running scheduler: TLS with these files (PEM), or None (dask's
+    configuration) when none is given. A ScenarioError if only some are given or a file is missing."""
+    given = {"--tls-ca-file": tls_ca_file, "--tls-cert": tls_cert, "--tls-key": tls_key}
+    if not any(given.values()):
+        return None
+    missing = [k for k, v in given.items() if not v]
+    if missing:
+        raise ScenarioError(f"{', '.join(missing)}: needed with {', '.join(k for k, v in given.items() if v)}")
+    for option, path in given.items():
+        if not Path(path).is_file():
+            raise ScenarioError(f"{option} {path}: file not found")
+    from distributed.security import Security
+    return Security(tls_ca_file=tls_ca_file, tls_client_cert=tls_cert, tls_client_key=tls_key,
+                    require_encryption=True)
+
+
 @contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[object]:
-    """A dask.distributed Client: to the scheduler at `scheduler`, or to a new local cluster of
-    `workers` processes (default: one per core), one thread each."""
+def dask_client(workers: int | None = None, scheduler: str | None = None, security=None) -> Iterator[object]:
+    """A dask.distributed Client: to the scheduler at `scheduler` (with `security`, see `security`),
+    or to a new local cluster of `workers` processes (default: one per core), one thread each,
+    reachable only with this process's temporary TLS credentials (see the module docstring)."""
     import logging
     import os
 
     try:
         from dask.distributed import Client, LocalCluster
+        from distributed.security import Security
     except ImportError:
         raise ScenarioError("emcosim sweep needs Dask: pip install 'dask[distributed]'") from None
 
     if scheduler:
         try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
+            client = Client(scheduler, timeout="20s", security=security)
+        except (OSError, TimeoutError, TypeError, ValueError) as exc:     # TypeError: tls:// without credentials
             raise ScenarioError(f"--scheduler {scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
         with client:
             yield client
@@ -216,63 +251,86 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     n = workers or os.cpu_count() or 1
     if n < 1:
         raise ScenarioError(f"--workers {workers}: must be >= 1")
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    try:
+        local = Security.temporary()                  # needs the `cryptography` package
+    except ImportError as exc:
+        raise ScenarioError(f"emcosim sweep: {exc}") from None
+    with _sigint_ignored():                          # the workers inherit it: Ctrl-C is the client's business
+        # silence_logs CRITICAL: every failure reaches the table as a row; what dask logs at ERROR is the
+        # noise of a shutdown after Ctrl-C (a worker's heartbeat racing the scheduler's close)
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               host="127.0.0.1", security=local, silence_logs=logging.CRITICAL)
+    with cluster, Client(cluster, security=local) as client:
         yield client
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while the local cluster starts its worker processes, which inherit that: a
+    Ctrl-C in the terminal (sent to every process of the group) then reaches only the client, which
+    closes the cluster, instead of every worker printing a KeyboardInterrupt traceback."""
+    import signal
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             stop_time: float | None = None, step_size: float | None = None,
-            stream: TextIO | None = sys.stderr) -> list[dict]:
-    """Submit every run to the cluster and return the rows in the order of `runs`; progress
-    ('runs done / total') goes to `stream`."""
+            stream: TextIO | None = sys.stderr, on_row=None) -> list[dict]:
+    """Submit every run to the cluster and return the rows in the order of `runs`; a progress bar
+    of the runs done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is
+    called as each run finishes."""
     from dask.distributed import as_completed
+
+    from ..progress import Counter
 
     futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, pure=False)
                for values in runs]
     index = {f.key: i for i, f in enumerate(futures)}
     rows: list[dict | None] = [None] * len(runs)
-    tic = time.monotonic()
     failed = 0
-    for done, future in enumerate(as_completed(futures), 1):
-        i = index[future.key]
-        try:
-            rows[i] = future.result()
-        except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
-            rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
-        failed += rows[i]["status"] != "ok"
-        _progress(stream, done, len(runs), failed, time.monotonic() - tic)
+    bar = None if stream is None else Counter(len(runs), "sweep", "run", stream)
+    try:
+        for future in as_completed(futures):
+            i = index[future.key]
+            try:
+                rows[i] = future.result()
+            except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
+                rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+            if on_row is not None:
+                on_row(i, rows[i])
+            failed += rows[i]["status"] != "ok"
+            if bar is not None:
+                bar.advance(f"{failed} failed" if failed else "")
+    finally:
+        if bar is not None:
+            bar.close()
     return rows
-
-
-def _progress(stream: TextIO | None, done: int, total: int, failed: int, elapsed: float) -> None:
-    if stream is None:
-        return
-    tty = getattr(stream, "isatty", lambda: False)()
-    if not tty and done != total and done % max(1, total // 10):
-        return
-    text = f"sweep: {done}/{total} runs done" + (f" ({failed} failed)" if failed else "") + f", {elapsed:.1f} s"
-    stream.write(("\r" + text) if tty else text + "\n")
-    if tty and done == total:
-        stream.write("\n")
-    stream.flush()
 
 
 def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
           samples: list[tuple[str, float, float]] = (), n_samples: int = 0, seed: int = 0,
           stop_time: float | None = None, step_size: float | None = None, workers: int | None = None,
-          scheduler: str | None = None, stream: TextIO | None = sys.stderr) -> tuple[list[dict], dict]:
+          scheduler: str | None = None, stream: TextIO | None = sys.stderr, security=None,
+          on_row=None) -> tuple[list[dict], dict]:
     """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
-    the wall time and the throughput."""
+    the wall time and the throughput. `on_row(i, row)`: see `run_all`."""
     runs = points(grid, samples, n_samples, seed)
     names = list(runs[0])
-    units = check_parameters(scenario, names, runs[0])
+    options = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
+    units = check_parameters(scenario, names, runs[0], options)
     fmu_dir = _common_fmu_dir(scenario)
     tic = time.perf_counter()
-    with dask_client(workers, scheduler) as client:
+    with dask_client(workers, scheduler, security) as client:
         started = time.perf_counter()
         try:
-            rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream)
+            rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row)
             end = time.perf_counter()
             n_workers = len(client.nthreads())
         finally:
@@ -286,6 +344,31 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
             "grid": {n: v for n, v in grid}, "samples": {n: [lo, hi] for n, lo, hi in samples},
             "n_samples": n_samples, "units": units}
     return rows, info
+
+
+class RowStream:
+    """The finished runs of a sweep appended to a CSV as they arrive (in the order they finish, each
+    with its run number; flushed after every row), so that an interrupted sweep keeps them. The
+    complete sweep then writes the table in run order over it (sweep_output.write_table)."""
+
+    def __init__(self, path: Path, names: list[str]):
+        from .sweep_output import columns
+        self.columns = columns([{n: 0.0 for n in names}])
+        self.file = open(path, "w", newline="")
+        self.writer = csv.writer(self.file)
+        self.writer.writerow(self.columns)
+        self.file.flush()
+        self.rows = 0
+
+    def __call__(self, i: int, row: dict) -> None:
+        values = {"run": i, **row}
+        self.writer.writerow(["" if values.get(c) is None else
+                              (repr(values[c]) if isinstance(values[c], float) else values[c]) for c in self.columns])
+        self.file.flush()
+        self.rows += 1
+
+    def close(self) -> None:
+        self.file.close()
 
 
 def _close_on_workers(client) -> None:

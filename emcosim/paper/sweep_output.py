@@ -2,9 +2,12 @@
 
 Table: one row per run, with the swept parameter values, the metrics of the reproduce report and
 'status' ('ok' or the run's error). Plots (PNG): for a 1-D grid one figure with a panel per metric
-over the swept parameter; for a 2-D grid one heatmap per metric. With random plant samples, a grid
-point shows the mean over its samples (1-D: plus the min-max band). Failed runs are left out of the
-plots (blank cells) and listed in the table.
+over the swept parameter; for a 2-D grid one heatmap per metric, on a log colour scale where the
+values span more than a decade, with ticks at the grid values. With random plant samples, a grid
+point shows the mean over its samples (1-D: plus the min-max band). A run whose error never stays in
+the 2 % band within the horizon (settling time inf, or equal to the horizon) is marked "not settled"
+rather than plotted as a number; failed runs are left out of the plots and listed in the table.
+Each PNG carries what it shows (grid, values, labels) as JSON in its 'Description' metadata.
 """
 from __future__ import annotations
 
@@ -15,11 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .report import finite_or_none
 from .sweep import METRICS
 
 METRIC_LABELS = {
     "settling_time_2pct": ("time into the 2 % band", "s"),
-    "overshoot": ("overshoot (fraction of |e(0)|)", "1"),
+    "overshoot": ("overshoot (% of |e(0)|)", "%"),
     "oscillations": ("oscillations (sign changes of e)", "1"),
     "ise": ("ISE = integral of e^2", "m^2 s"),
     "final_error": ("final position error e(T)", "m"),
@@ -39,7 +43,7 @@ def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     cols = columns(rows)
     table = [{"run": i, **{c: r.get(c) for c in cols[1:]}} for i, r in enumerate(rows)]
-    with open(out / "sweep.csv", "w", newline="") as f:      # exact numbers (repr); inf = never in the band
+    with open(out / "sweep.csv", "w", newline="") as f:      # exact numbers (repr); inf = never settles in the band
         w = csv.writer(f)
         w.writerow(cols)
         for r in table:
@@ -52,8 +56,10 @@ def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
              f"{info.get('runs_per_s', float('nan')):.3g} runs/s.", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(_cell(r[c]) for c in cols) + " |" for r in table]
+    lines += ["", "settling_time_2pct inf: the error never stays in the 2 % band of |e(0)| within the horizon "
+                  "(null in sweep.json)."]
     (out / "sweep.md").write_text("\n".join(lines) + "\n")
-    clean = [{k: _finite_or_none(v) for k, v in r.items()} for r in table]     # strict JSON: no Infinity/NaN
+    clean = [finite_or_none(r) for r in table]                             # strict JSON: no Infinity/NaN
     (out / "sweep.json").write_text(json.dumps({"info": info, "rows": clean}, indent=1, default=str))
     return [out / "sweep.csv", out / "sweep.md", out / "sweep.json"]
 
@@ -73,33 +79,34 @@ def _cell(v) -> str:
     return str(v).replace("|", "/")
 
 
-def _finite_or_none(v):
-    """JSON value: non-finite numbers (a metric of a run that never enters the band) become null."""
-    return None if isinstance(v, float) and not math.isfinite(v) else v
-
-
 def replot(folder: Path, out: Path | None = None, prefix: str = "sweep", title: str = "") -> list[Path]:
     """Draw the plots again from a sweep's sweep.csv and sweep.json (e.g. with another title), into
     `out` (default: the same folder)."""
     folder = Path(folder)
     info = json.loads((folder / "sweep.json").read_text())["info"]
-    return plot(read_table(folder / "sweep.csv"), info["grid"], info["units"], Path(out or folder), prefix, title)
+    return plot(read_table(folder / "sweep.csv"), info["grid"], info["units"], Path(out or folder), prefix, title,
+                info.get("stop_time"))
 
 
 # ---- plots ---------------------------------------------------------------------------------------
 
+NOT_SETTLED = "not settled"
+
+
 def plot(rows: list[dict], grid: dict[str, list[float]], units: dict[str, str], out: Path,
-         prefix: str = "sweep", title: str = "") -> list[Path]:
+         prefix: str = "sweep", title: str = "", horizon: float | None = None) -> list[Path]:
     """PNG plots of each metric over the grid (see module docstring); returns the files written.
-    No plots for a sweep without a grid or with more than two grid axes."""
+    No plots for a sweep without a grid or with more than two grid axes. `horizon` [s]: a settling
+    time equal to it counts as not settled."""
     import matplotlib
     matplotlib.use("Agg")
 
     names = list(grid)
     if len(names) == 1:
-        return [_lines(rows, names[0], grid[names[0]], units, out / f"{prefix}_metrics.png", title)]
+        return [_lines(rows, names[0], grid[names[0]], units, out / f"{prefix}_metrics.png", title, horizon)]
     if len(names) == 2:
-        return [_heatmap(rows, names, grid, units, m, out / f"{prefix}_{m}.png", title) for m in METRICS]
+        return [_heatmap(heatmap_data(rows, names, grid, units, m, horizon), out / f"{prefix}_{m}.png", title)
+                for m in METRICS]
     return []
 
 
@@ -112,75 +119,124 @@ def _metric_label(m: str) -> str:
     return f"{text} [{unit}]"
 
 
-def _values_at(rows: list[dict], point: dict[str, float], metric: str) -> np.ndarray:
-    """The finite values of `metric` of the ok runs at this grid point (all its samples)."""
+def _not_settled(metric: str, value: float, horizon: float | None) -> bool:
+    return metric == "settling_time_2pct" and (not math.isfinite(value) or
+                                               (horizon is not None and value >= horizon * (1 - 1e-9)))
+
+
+def _values_at(rows: list[dict], point: dict[str, float], metric: str, horizon: float | None = None
+               ) -> tuple[np.ndarray, int]:
+    """(finite values of `metric` of the ok runs at this grid point, how many of them did not settle)."""
     vals = [r[metric] for r in rows if r["status"] == "ok" and all(r[k] == v for k, v in point.items())]
-    vals = np.array(vals, dtype=float)
-    return vals[np.isfinite(vals)]
+    unsettled = sum(_not_settled(metric, v, horizon) for v in vals if v is not None)
+    vals = np.array([v for v in vals if v is not None and not _not_settled(metric, v, horizon)], dtype=float)
+    return vals[np.isfinite(vals)], unsettled
 
 
-def _lines(rows, name, values, units, path: Path, title: str) -> Path:
+def _describe(data: dict) -> dict:
+    """PNG metadata: the figure's data as JSON in 'Description' (strict JSON: null for n/a)."""
+    return {"Description": json.dumps(finite_or_none(data), allow_nan=False)}
+
+
+def _lines(rows, name, values, units, path: Path, title: str, horizon: float | None) -> Path:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5), sharex=True)
     x = np.array(values)
     any_failed = False
+    meta = {"x": {"name": name, "unit": units.get(name, ""), "values": list(values)}, "panels": {}}
     for ax, m in zip(axes.ravel(), METRICS):
-        stats = [_values_at(rows, {name: v}, m) for v in values]
-        mean = np.array([s.mean() if s.size else np.nan for s in stats])
-        ax.plot(x, mean, "o-", color="tab:blue", lw=1.3, ms=4)
-        if any(s.size > 1 for s in stats):
-            lo = np.array([s.min() if s.size else np.nan for s in stats])
-            hi = np.array([s.max() if s.size else np.nan for s in stats])
-            ax.fill_between(x, lo, hi, color="tab:blue", alpha=0.2, label="min-max over plant samples")
+        stats = [_values_at(rows, {name: v}, m, horizon) for v in values]
+        mean = np.array([s.mean() if s.size else np.nan for s, _ in stats])
+        ax.plot(x, mean, "o-", color="#0072B2", lw=1.3, ms=4)
+        if any(s.size > 1 for s, _ in stats):
+            lo = np.array([s.min() if s.size else np.nan for s, _ in stats])
+            hi = np.array([s.max() if s.size else np.nan for s, _ in stats])
+            ax.fill_between(x, lo, hi, color="#0072B2", alpha=0.2, label="min-max over plant samples")
             ax.legend(fontsize=7)
-        failed = [v for v, s in zip(values, stats) if s.size == 0]
+        unsettled = [v for v, (s, u) in zip(values, stats) if u and not s.size]
+        for v in unsettled:
+            ax.annotate(NOT_SETTLED, (v, 1.0), xycoords=("data", "axes fraction"), ha="center", va="top",
+                        fontsize=7, color="#D55E00", rotation=90)
+        failed = [v for v, (s, u) in zip(values, stats) if s.size == 0 and not u]
         for v in failed:
-            ax.axvline(v, color="tab:red", lw=0.8, ls=":")
+            ax.axvline(v, color="#D55E00", lw=0.8, ls=":")
         any_failed = any_failed or bool(failed)
         ax.set_ylabel(_metric_label(m), fontsize=9)
         ax.grid(alpha=0.3)
+        if len(values) <= 12:
+            ax.set_xticks(x, [f"{v:g}" for v in values])
+        meta["panels"][m] = {"label": _metric_label(m), "mean": list(mean), "not_settled_at": unsettled,
+                             "failed_at": failed}
     for ax in axes[-1]:
         ax.set_xlabel(_label(name, units))
-    fig.suptitle(title + ("   (dotted red: run failed or metric not finite)" if any_failed else ""), fontsize=10)
+    fig.suptitle(title + ("   (dotted: run failed or metric not finite)" if any_failed else ""), fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, metadata=_describe(meta))
     plt.close(fig)
     return path
 
 
-def _heatmap(rows, names, grid, units, metric: str, path: Path, title: str) -> Path:
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
-
-    xs, ys = grid[names[0]], grid[names[1]]
+def heatmap_data(rows: list[dict], names: list[str], grid: dict[str, list[float]], units: dict[str, str],
+                 metric: str, horizon: float | None = None) -> dict:
+    """What the heatmap of `metric` over a 2-D grid shows: the mean value per cell (None where there
+    is none), the text of each cell (the value, 'not settled' or 'n/a'), whether the colour scale is
+    logarithmic (the finite values span more than a decade), the axes with their ticks (the grid
+    values) and labels."""
+    xs, ys = list(grid[names[0]]), list(grid[names[1]])
     z = np.full((len(ys), len(xs)), np.nan)
+    text = [["n/a"] * len(xs) for _ in ys]
     for i, y in enumerate(ys):
         for j, x in enumerate(xs):
-            s = _values_at(rows, {names[0]: x, names[1]: y}, metric)
+            s, unsettled = _values_at(rows, {names[0]: x, names[1]: y}, metric, horizon)
             if s.size:
                 z[i, j] = s.mean()
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+                text[i][j] = f"{z[i, j]:.3g}" + (f" ({unsettled} not settled)" if unsettled else "")
+            elif unsettled:
+                text[i][j] = NOT_SETTLED
+    finite = np.abs(z[np.isfinite(z)])
+    nonzero = finite[finite > 0]
+    spans = bool(nonzero.size and nonzero.max() / nonzero.min() > 10)
+    scale = "linear"
+    if spans:
+        scale = "log" if np.all(z[np.isfinite(z)] > 0) else "symlog"
+    return {"metric": metric, "label": _metric_label(metric), "title": METRIC_LABELS[metric][0],
+            "x": {"name": names[0], "label": _label(names[0], units), "ticks": xs},
+            "y": {"name": names[1], "label": _label(names[1], units), "ticks": ys},
+            "values": z, "text": text, "scale": scale}
+
+
+def _heatmap(data: dict, path: Path, title: str) -> Path:
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm, SymLogNorm
+
+    xs, ys, z = data["x"]["ticks"], data["y"]["ticks"], data["values"]
     finite = z[np.isfinite(z)]
     norm = None
-    if finite.size and finite.min() > 0 and finite.max() / finite.min() > 100:
+    if data["scale"] == "log":
         norm = LogNorm(finite.min(), finite.max())
-    mesh = ax.pcolormesh(_edges(xs), _edges(ys), np.ma.masked_invalid(z), norm=norm, cmap="viridis",
-                         shading="flat")
-    fig.colorbar(mesh, ax=ax, label=_metric_label(metric))
+    elif data["scale"] == "symlog":
+        small = np.abs(finite[finite != 0]).min()
+        norm = SymLogNorm(linthresh=small, vmin=finite.min(), vmax=finite.max())
+    fig, ax = plt.subplots(figsize=(6.8, 5.0))
+    mesh = ax.pcolormesh(_edges(xs), _edges(ys), np.ma.masked_invalid(z), norm=norm, cmap="viridis", shading="flat")
+    fig.colorbar(mesh, ax=ax, label=data["label"] + (" (log scale)" if data["scale"] != "linear" else ""))
+    ax.set_xticks(xs, [f"{v:g}" for v in xs])
+    ax.set_yticks(ys, [f"{v:g}" for v in ys])
     if len(xs) * len(ys) <= 100:
         for i, y in enumerate(ys):
             for j, x in enumerate(xs):
                 ok = np.isfinite(z[i, j])
                 bright = ok and mesh.norm(z[i, j]) > 0.6             # viridis is light at the top
-                ax.text(x, y, f"{z[i, j]:.3g}" if ok else "n/a", ha="center", va="center", fontsize=7,
-                        color="black" if bright else ("white" if ok else "tab:red"))
-    ax.set_xlabel(_label(names[0], units))
-    ax.set_ylabel(_label(names[1], units))
-    sub = METRIC_LABELS[metric][0] + ("\n(n/a: run failed, or metric not finite, e.g. never in the band)" if not np.all(np.isfinite(z)) else "")
+                ax.text(x, y, data["text"][i][j].replace(" (", "\n("), ha="center", va="center", fontsize=7,
+                        color="black" if bright else ("white" if ok else "#D55E00"))
+    ax.set_xlabel(data["x"]["label"])
+    ax.set_ylabel(data["y"]["label"])
+    missing = not np.all(np.isfinite(z))
+    sub = data["title"] + ("\n(blank: not settled within the horizon, or n/a: run failed)" if missing else "")
     ax.set_title(f"{title}\n{sub}" if title else sub, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, metadata=_describe(data))
     plt.close(fig)
     return path
 

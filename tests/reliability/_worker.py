@@ -123,13 +123,18 @@ class Instance:
         return worst
 
     def get(self, names) -> list[float]:
-        n = len(names)
-        vr = (fmi2ValueReference * n)(*[self.model.vr[x] for x in names])
-        arr = (fmi2Real * n)()
-        status = self.call(self.fmu.fmi2GetReal, self.component, vr, n, arr)
+        status, values = self.get_with_status(names)
         if status > WARNING:
             raise RuntimeError(f"fmi2GetReal returned status {status}")
-        return list(arr)
+        return values
+
+    def get_with_status(self, names) -> tuple[int, list[float]]:
+        """fmi2GetReal's status and the values it wrote (with fmi2Error too: e.g. NaN, named in the log)."""
+        n = len(names)
+        vr = (fmi2ValueReference * n)(*[self.model.vr[x] for x in names])
+        arr = (fmi2Real * n)(*([math.nan] * n))
+        status = self.call(self.fmu.fmi2GetReal, self.component, vr, n, arr)
+        return status, list(arr)
 
     def step(self, t: float, h: float) -> int:
         return self.call(self.fmu.fmi2DoStep, self.component, t, h, 1)
@@ -325,14 +330,18 @@ def cmd_case(req: dict) -> dict:
     energy = req.get("energy")
     names = model.outputs
     if status <= WARNING:
-        result["outputs0"] = dict(zip(names, inst.get(names)))
+        result["outputs0_status"], values = inst.get_with_status(names)
+        result["outputs0"] = dict(zip(names, values))
         before = result["outputs0"]
         for k, inputs in enumerate(req["steps"]):
             set_status = inst.set(inputs)
-            mid = dict(zip(names, inst.get(names)))    # after setting (a controller's u is computed here)
+            mid_status, values = inst.get_with_status(names)   # after setting (a controller's u is computed here)
+            mid = dict(zip(names, values))
             status = inst.step(t0 + k * h, h)
-            after = dict(zip(names, inst.get(names)))
-            entry = {"set": set_status, "mid": mid, "status": status, "after": after}
+            after_status, values = inst.get_with_status(names)
+            after = dict(zip(names, values))
+            entry = {"set": set_status, "mid": mid, "mid_status": mid_status, "status": status, "after": after,
+                     "after_status": after_status}
             if energy is not None and status <= WARNING:
                 entry["energy"] = energy_reference(energy["plant"], energy["params"],
                                                    [before["q"], before["p"], before["x_e"]], inputs["u"], h)
@@ -447,6 +456,110 @@ def cmd_energy(req: dict) -> dict:
     return energy_reference(req["plant"], req["params"], req["eta0"], req["u"], req["h"])
 
 
+def cmd_calls(req: dict) -> dict:
+    """Raw FMI calls, in order, on instances of the FMUs `fmus` (key -> path), statuses never raising.
+
+    calls: ["inst", key] (a new instance, the current one from now on) | ["use", i] | ["init", {values}] |
+    ["setr" | "seti", name or value reference, value] | ["getr" | "geti", name or value reference] |
+    ["step", t, h] | ["term"] | ["reset"] | ["free"] (fmi2FreeInstance, also a second time) |
+    ["sget", slot] | ["sset", slot] | ["sfree", slot] | ["ser", slot] (into the byte buffer) |
+    ["deser", slot] (from the byte buffer) | ["bytes", b"..."] | ["flip", i] | ["cut", n] |
+    ["sbogus"] (fmi2SetFMUstate with a pointer no FMU gave out) | ["nullstep"] (fmi2DoStep on NULL).
+    Returns [[call, status, value]] and the current instance's log messages per call."""
+    import ctypes
+
+    models = {key: Model.get(path) for key, path in req["fmus"].items()}
+    instances: list[Instance] = []
+    inst = None
+    states: dict = {}
+    buffer = b""
+    bogus = ctypes.create_string_buffer(b"Z" * 64)
+    out = []
+
+    def vr_of(x):
+        return x if isinstance(x, int) else inst.model.vr[x]
+
+    for call in req["calls"]:
+        name, args = call[0], call[1:]
+        status, value = None, None
+        if inst is not None:
+            inst.messages.clear()
+        if name == "inst":
+            model = models[args[0]]
+            try:
+                inst = model.new(f"calls{len(instances)}")
+                instances.append(inst)
+                status = OK
+            except Exception:                                             # noqa: BLE001 - NULL from fmi2Instantiate
+                status = None
+        elif name == "use":
+            inst = instances[args[0]]
+            continue
+        elif name == "init":
+            status = inst.init(args[0] if args else {})
+        elif name in ("setr", "seti"):
+            vr = (fmi2ValueReference * 1)(vr_of(args[0]))
+            arr = (fmi2Real if name == "setr" else fmi2Integer) * 1
+            function = inst.fmu.fmi2SetReal if name == "setr" else inst.fmu.fmi2SetInteger
+            status = inst.call(function, inst.component, vr, 1, arr(args[1]))
+        elif name in ("getr", "geti"):
+            vr = (fmi2ValueReference * 1)(vr_of(args[0]))
+            arr = ((fmi2Real if name == "getr" else fmi2Integer) * 1)()
+            function = inst.fmu.fmi2GetReal if name == "getr" else inst.fmu.fmi2GetInteger
+            status = inst.call(function, inst.component, vr, 1, arr)
+            value = arr[0]
+        elif name == "step":
+            status = inst.step(args[0], args[1])
+        elif name == "term":
+            status = inst.call(inst.fmu.fmi2Terminate, inst.component)
+        elif name == "reset":
+            status = inst.reset()
+        elif name == "free":
+            inst.fmu.fmi2FreeInstance(inst.component)
+            inst.freed = True
+        elif name == "sget":
+            state = ctypes.c_void_p()
+            status = inst.call(inst.fmu.fmi2GetFMUstate, inst.component, ctypes.byref(state))
+            states[args[0]] = state
+        elif name == "sset":
+            status = inst.call(inst.fmu.fmi2SetFMUstate, inst.component, states[args[0]])
+        elif name == "sbogus":
+            status = inst.call(inst.fmu.fmi2SetFMUstate, inst.component, ctypes.c_void_p(ctypes.addressof(bogus)))
+        elif name == "sfree":
+            status = inst.call(inst.fmu.fmi2FreeFMUstate, inst.component, ctypes.byref(states[args[0]]))
+        elif name == "ser":
+            size = ctypes.c_size_t()
+            status = inst.call(inst.fmu.fmi2SerializedFMUstateSize, inst.component, states[args[0]], ctypes.byref(size))
+            if status <= WARNING:
+                data = ctypes.create_string_buffer(size.value)
+                status = inst.call(inst.fmu.fmi2SerializeFMUstate, inst.component, states[args[0]], data, size)
+                buffer = data.raw
+            value = len(buffer)
+        elif name == "deser":
+            state = ctypes.c_void_p()
+            data = ctypes.create_string_buffer(buffer, len(buffer))
+            status = inst.call(inst.fmu.fmi2DeSerializeFMUstate, inst.component, data, len(buffer), ctypes.byref(state))
+            states[args[0]] = state
+        elif name == "bytes":
+            buffer = args[0]
+            continue
+        elif name == "flip":
+            buffer = buffer[:args[0]] + bytes([buffer[args[0]] ^ 0xFF]) + buffer[args[0] + 1:]
+            continue
+        elif name == "cut":
+            buffer = buffer[:args[0]]
+            continue
+        elif name == "nullstep":
+            status = inst.call(inst.fmu.fmi2DoStep, None, 0.0, 1e-6, 1)
+        else:
+            raise ValueError(f"unknown call {name}")
+        out.append([name, status, value, [m for m in (inst.messages if inst else [])]])
+    for inst in instances:
+        if not inst.freed:
+            inst.free()
+    return {"calls": out}
+
+
 def cmd_crash(req: dict) -> dict:
     """Self-test of the harness: die like a crashing FMU would."""
     import ctypes
@@ -479,6 +592,8 @@ def _decode(obj):
     if isinstance(obj, dict):
         if "__float__" in obj:
             return float(obj["__float__"])
+        if "__bytes__" in obj:
+            return base64.b64decode(obj["__bytes__"])
         return {k: _decode(v) for k, v in obj.items()}
     if isinstance(obj, list):
         return [_decode(v) for v in obj]

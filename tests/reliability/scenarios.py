@@ -62,6 +62,12 @@ def one_line_error(stderr: str) -> str:
 
 
 def read_csv(path: Path) -> tuple[list[str], list[list[float]]]:
+    """Header and rows of a results CSV (a partial file's comment line is skipped)."""
     with open(path, newline="") as f:
-        rows = list(csv.reader(f))
+        rows = list(csv.reader(line for line in f if not line.startswith("#")))
     return rows[0], [[float(v) for v in row] for row in rows[1:]]
+
+
+def partial_of(out: Path) -> Path:
+    """Where `emcosim run -o out` keeps the rows of a run that failed: NAME.partial.csv."""
+    return out.with_name(f"{out.stem}.partial{out.suffix}")

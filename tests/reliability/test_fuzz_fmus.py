@@ -7,9 +7,10 @@ the worker subprocess. Each case must end in
   balance H(t+h) - H(t) = int (-p^2 R_m/m^2 - x_e Psi R_e Psi x_e + y u) dt over each step (y = G_e Psi
   x_e, the passive output; the integral from an independent Radau integration in the worker);
   for a controller, u equal to components' u for the inputs; for the reference, components' jet; or
-- a clean error: initialization refused (fmi2Fatal, the only failure status pythonfmu 0.7.0 can
-  return) or a step discarded (fmi2Discard), with a log message, the state left unchanged, exactly
-  when components (the mathematics) refuses the same parameters or inputs.
+- a clean error: initialization refused (fmi2Error), a step size that is not finite and positive
+  refused (fmi2Error), a step discarded (fmi2Discard), or an output that is not finite read with
+  fmi2Error (never with fmi2OK), each with a log message and the state left unchanged, exactly when
+  components (the mathematics) refuses the same parameters or inputs.
 
 Anything else (a crash or hang of the worker, a wrong status, a silently wrong or non-finite number)
 fails the test with the case. Counts go to the tally (docs/reliability.md).
@@ -28,7 +29,7 @@ from components import certificates, catalog, maglev, mems, references
 from components.ph_plant import Jet
 from components.plant_step import PlantStepper
 
-from .harness import DISCARD, FATAL, OK, WARNING
+from .harness import DISCARD, ERROR, OK, WARNING
 
 pytestmark = pytest.mark.reliability
 
@@ -100,7 +101,7 @@ def judge_plant(identifier: str, values: dict, h: float, inputs: list[float], r:
     """'correct' or 'clean_error'; AssertionError otherwise."""
     full = dict(_DEFAULTS[identifier], **values)
     accepted = _components_accepts_plant(identifier, full)
-    if r["init"] == FATAL:
+    if r["init"] == ERROR:
         _message_for(r)
         assert not accepted, f"initialization refused parameters components accepts: {r['errors']}"
         assert "initialization failed" in r["errors"]
@@ -112,12 +113,17 @@ def judge_plant(identifier: str, values: dict, h: float, inputs: list[float], r:
     for k, (entry, u) in enumerate(zip(r["steps"], inputs)):
         before = entry["mid"]
         after = entry["after"]
+        if not (math.isfinite(h) and h > 0):                   # FMI: the step must be > 0
+            assert entry["status"] == ERROR and "the step > 0" in r["errors"], (entry["status"], r["errors"])
+            assert after == before, f"a refused step changed the outputs: {before} -> {after}"
+            return "clean_error"
         if entry["status"] == DISCARD:
             _message_for(r)
             assert after == before, f"a discarded step changed the outputs: {before} -> {after}"
             assert "doStep" in r["errors"]
             return "clean_error"
         assert entry["status"] == OK, f"doStep returned status {entry['status']}"
+        assert entry["after_status"] == OK, f"fmi2GetReal returned status {entry['after_status']}: {r['errors']}"
         eta = np.array([after["q"], after["p"], after["x_e"]])
         assert np.all(np.isfinite(eta)) and math.isfinite(after["H"]), f"non-finite result {after}"
         plant.check_state(eta)                                   # inside the domain (raises otherwise)
@@ -228,7 +234,7 @@ def _components_u(identifier: str, values: dict, inputs: dict) -> tuple[bool, fl
 def judge_controller(identifier: str, values: dict, steps: list[dict], r: dict) -> str:
     full = dict(_DEFAULTS[identifier], **values)
     accepted, _ = _components_u(identifier, full, dict(steps[0]))
-    if r["init"] == FATAL:
+    if r["init"] == ERROR:
         _message_for(r)
         assert not accepted, f"initialization refused parameters components accepts: {r['errors']}"
         return "clean_error"
@@ -238,11 +244,12 @@ def judge_controller(identifier: str, values: dict, steps: list[dict], r: dict) 
         _, expected = _components_u(identifier, full, inputs)
         u = entry["mid"]["u"]
         if math.isnan(expected):
+            assert entry["mid_status"] == ERROR and "u = nan is not finite" in r["errors"], \
+                f"u read with status {entry['mid_status']} where components gives no finite u for {inputs}"
             assert math.isnan(u), f"u = {u} where components gives no finite u for {inputs}"
             assert entry["status"] == DISCARD, f"doStep status {entry['status']} with no finite u"
-            _message_for(r)
             return "clean_error"
-        assert u == expected, f"u = {u!r}, components: {expected!r} for {inputs}"
+        assert entry["mid_status"] == OK and u == expected, f"u = {u!r}, components: {expected!r} for {inputs}"
         assert entry["status"] == OK and entry["after"]["u"] == expected
     return "correct"
 
@@ -281,7 +288,7 @@ def judge_reference(values: dict, h: float, t0: float, n: int, r: dict) -> str:
         reference = catalog.reference(kind, {k: full[k] for k in catalog.REFERENCE_PARAMETERS})
     except Exception:                                          # noqa: BLE001
         reference = None
-    if r["init"] == FATAL:
+    if r["init"] == ERROR:
         _message_for(r)
         assert reference is None, f"initialization refused parameters components accepts: {r['errors']}"
         return "clean_error"
@@ -289,7 +296,8 @@ def judge_reference(values: dict, h: float, t0: float, n: int, r: dict) -> str:
     t = t0
     jets = [r["outputs0"]] + [e["after"] for e in r["steps"]]
     statuses = [OK] + [e["status"] for e in r["steps"]]
-    for k, (jet, status) in enumerate(zip(jets, statuses)):
+    get_statuses = [r["outputs0_status"]] + [e["after_status"] for e in r["steps"]]
+    for k, (jet, status, get_status) in enumerate(zip(jets, statuses, get_statuses)):
         if status == DISCARD:
             _message_for(r)
             return "clean_error"
@@ -302,13 +310,13 @@ def judge_reference(values: dict, h: float, t0: float, n: int, r: dict) -> str:
         except ArithmeticError:                              # e.g. duration = 1e-300: components cannot evaluate
             expected = None
         if expected is None or not all(math.isfinite(x) for x in expected):
-            # no finite jet exists: the FMU must not invent one, and must say so in its log
+            # no finite jet exists: the FMU must not invent one, and must say so (fmi2Error and its log)
             assert not all(math.isfinite(x) for x in got), f"finite jet {got} where components has none"
-            _message_for(r)
+            assert get_status == ERROR and "is not finite" in r["errors"], (get_status, r["errors"])
             _REFERENCE_NONFINITE.append((values, t, got, status))
             return "clean_error"
-        assert all(math.isfinite(x) for x in got), (f"the Reference FMU returned a non-finite jet {got} at t = {t} "
-                                                     f"with fmi2OK and no message (parameters {values})")
+        assert get_status == OK and all(math.isfinite(x) for x in got), (
+            f"the Reference FMU returned the jet {got} at t = {t} with status {get_status} (parameters {values})")
         assert got == expected, (got, expected)
         t = (t0 + k * h) + h                       # the FMU's time: currentCommunicationPoint + stepSize
     return "correct"

@@ -1,0 +1,126 @@
+"""What a user types: `emcosim --version`, suggestions for a misspelled scenario, negative numbers
+as option values, errors that name the option typed, `info` without a stray header, a default
+recording of each connected value once, progress bars only on a terminal, units on the exported
+closed loop's variables."""
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+
+from emcosim.cli import main
+from emcosim.engine.results import read_csv
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one_line_error(capsys) -> str:
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert err.startswith("emcosim: error:") and "\n" not in err, err
+    return err
+
+
+def test_version():
+    run = subprocess.run([sys.executable, "-m", "emcosim.cli", "--version"], capture_output=True, text=True)
+    assert run.returncode == 0 and run.stdout.strip() == f"emcosim {version('emcosim')}"
+
+
+@pytest.mark.parametrize("typed, meant", [("mems_regulaton_Dd0", "mems_regulation_Dd0"),
+                                          ("maglev_tracking_D-1_R0.8", "maglev_tracking_D-1_R0.82")])
+def test_misspelled_scenario_suggests_the_closest(typed, meant, capsys):
+    assert main(["run", typed, "--no-progress"]) == 1
+    err = one_line_error(capsys)
+    assert "did you mean" in err and meant in err
+
+
+def test_certify_suggests_too(capsys):
+    assert main(["certify", "mems_regulaton_Dd-1"]) == 1
+    assert "mems_regulation_Dd-1" in one_line_error(capsys)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "mems_regulation_Dd0", "--step-size", "-1e-5"], "--step-size -1e-05: must be a positive number"),
+    (["run", "mems_regulation_Dd0", "--tolerance", "-.5"], "--tolerance -0.5: must be a positive number"),
+    (["run", "mems_regulation_Dd0", "--stop-time", "-2E-3"], "stop time -0.002 must be after the start time"),
+])
+def test_negative_numbers_are_parsed_then_refused_clearly(args, message, capsys):
+    assert main(args + ["--no-progress"]) == 1                   # not argparse's usage error (status 2)
+    assert message in one_line_error(capsys)
+
+
+def test_sweep_names_the_option_typed(capsys, tmp_path):
+    assert main(["sweep", "mems_regulation_Dd0", "--grid", "nosuch.x=0:1:3", "--out", str(tmp_path)]) == 1
+    assert one_line_error(capsys).startswith("emcosim: error: --grid nosuch.x: no component 'nosuch'")
+    assert main(["sweep", "mems_regulation_Dd0", "--sample", "plant.nope=0:1", "--samples", "2",
+                 "--out", str(tmp_path)]) == 1
+    assert one_line_error(capsys).startswith("emcosim: error: --sample plant.nope: unknown variable 'nope'")
+
+
+def test_info_of_an_unknown_scenario_prints_only_the_error(capsys):
+    assert main(["info", "mems_regulation_Dd0", "nosuch"]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith("emcosim: error: nosuch") and captured.err.count("\n") == 1
+
+
+def test_default_recording_holds_each_connected_value_once(fmu_dir, tmp_path, capsys):
+    out = tmp_path / "r.csv"
+    assert main(["run", "maglev_tracking_D0_R2.82", "--stop-time", "2e-3", "--fmu-dir", str(fmu_dir),
+                 "--output", str(out), "--no-progress"]) == 0
+    columns = list(read_csv(out))
+    assert columns == ["time", "reference.q_star", "reference.q_star_dot", "reference.q_star_ddot",
+                       "reference.q_star_dddot", "controller.u", "plant.q", "plant.p", "plant.x_e", "plant.H"]
+    assert main(["run", "maglev_tracking_D0_R2.82", "--stop-time", "2e-3", "--fmu-dir", str(fmu_dir),
+                 "--output", str(out), "--record", "plant.q,controller.q", "--no-progress"]) == 0
+    assert list(read_csv(out)) == ["time", "plant.q", "controller.q"]          # --record takes any choice
+
+
+def test_help_says_how_to_choose_variables(capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--record" in text and "emcosim info SCENARIO" in text and "each connected value is recorded once" in text
+
+
+def test_results_are_ignored_by_git():
+    assert "results/" in (ROOT / ".gitignore").read_text().split()
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_bars_only_on_a_terminal():
+    from emcosim.progress import Counter, ProgressBar
+    tty, log = Terminal(), io.StringIO()
+    for stream in (tty, log):
+        bar = ProgressBar("run", delay=0.0, stream=stream)
+        bar(0.5)
+        bar(1.0)
+        bar.close()
+        counter = Counter(3, "sweep", stream=stream)
+        for _ in range(3):
+            counter.advance()
+        counter.close()
+    assert "100.0%" in tty.getvalue() and "3/3" in tty.getvalue()
+    assert log.getvalue() == ""
+
+
+def test_exported_loop_has_units(fmu_dir, tmp_path):
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+    fmu = tmp_path / "loop.fmu"
+    assert main(["export", "maglev_regulation_prop2", "-o", str(fmu), "--fmu-dir", str(fmu_dir)]) == 0
+    assert validate_fmu(str(fmu)) == []
+    md = read_model_description(str(fmu))
+    units = {v.name: v.unit for v in md.modelVariables}
+    plant = {v.name: v.unit for v in read_model_description(str(fmu_dir / "Maglev.fmu")).modelVariables}
+    assert units["plant.q"] == "m" and units["plant.x_e"] == "Wb" and units["controller.u"] == "V"
+    assert all(units[f"plant.{n}"] == plant[n] for n in ("q", "p", "x_e", "H", "m", "k"))
+    assert {u.name for u in md.unitDefinitions} >= {"m", "Wb", "V", "J"}

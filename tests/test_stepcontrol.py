@@ -9,7 +9,7 @@ import pytest
 from emcosim.engine.errors import ScenarioError
 from emcosim.engine.master import Simulation, simulate
 
-from .test_coupling import loop, make, toy_library  # noqa: F401 - fixtures
+from .test_coupling import DYNAMIC, STATIC, loop, make, toy_library  # noqa: F401 - fixtures
 
 
 def error(r, k: float = -1.0) -> float:
@@ -90,3 +90,43 @@ def test_cli_run_with_tolerance_reports_the_steps(make, tmp_path, capsys):
     assert np.max(np.abs(data["plant.x"] - np.exp(-data["time"]))) <= 3e-4
     with pytest.raises(SystemExit):                     # argparse: K must be 0..3
         main(["run", str(s.path.parent), "--coupling-order", "7", "--no-progress"])
+
+
+@pytest.mark.parametrize("tolerance", [None, 1e-3])
+def test_a_non_finite_derivative_ends_the_run_naming_it(make, tmp_path, tolerance):
+    """An FMU that returns a NaN output derivative with fmi2OK (ToyDynamic's nan_at) ends the run
+    with a message naming the derivative, its order and the time; the rows before it are kept in the
+    sink's partial file, each row accepted once (no rolled-back step among them)."""
+    from emcosim.engine.errors import SimulationError
+    from emcosim.engine.results import ResultFile, read_csv
+    s = make([("plant", "dynamic", DYNAMIC, True, 3), ("ctrl", "static", STATIC, True, 3)],
+             [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")],
+             {"ctrl": {"k1": -1.0}, "plant": {"x0": 1.0, "nan_at": 0.5}}, 1.0, 0.01)
+    out = tmp_path / "r.csv"
+    with pytest.raises(SimulationError) as failure:
+        with ResultFile(out) as sink:
+            simulate(s, tolerance=tolerance, coupling_order=1, max_step=0.1, record=["plant.x"], sink=sink)
+    message = str(failure.value)
+    assert "derivative of order 1 of plant.x = nan at t = " in message, message
+    t_fail = float(message.split("at t = ")[1].split(" s")[0])
+    assert 0.5 <= t_fail <= 0.6, message
+    data = read_csv(sink.final)
+    assert sink.final.name == "r.partial.csv" and not out.exists()
+    assert np.all(np.diff(data["time"]) > 0) and data["time"][-1] < t_fail
+    assert np.max(np.abs(data["plant.x"] - np.exp(-data["time"]))) <= 3e-3
+
+
+def test_rejected_steps_never_reach_the_sink(make, tmp_path):
+    """With a too long first step (rejected, rolled back) the streamed file holds the accepted points
+    only: strictly increasing times, one row per accepted step of the last pass plus the start (a
+    second pass, when the first missed the aim, replaces the first pass's rows)."""
+    from emcosim.engine.results import ResultFile, read_csv
+    s = loop(make, stop_time=2.0)
+    out = tmp_path / "r.csv"
+    with ResultFile(out) as sink:
+        r = simulate(s, tolerance=1e-4, step_size=1.0, coupling_order=1, record=["plant.x"], sink=sink)
+    data = read_csv(out)
+    assert r.step_control.rejected >= 1
+    assert np.all(np.diff(data["time"]) > 0) and data["time"][0] == 0.0 and data["time"][-1] == 2.0
+    assert len(data["time"]) == len(r) <= r.step_control.accepted + 1
+    assert np.max(np.abs(data["plant.x"] - np.exp(-data["time"]))) <= 3e-4

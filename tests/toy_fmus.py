@@ -15,7 +15,8 @@ SOURCE = Path(__file__).parent / "fixtures" / "toy_derivatives.c"
 MODELS = {
     "dynamic": [("a", "parameter", "fixed", 0.0), ("b", "parameter", "fixed", 1.0), ("x0", "parameter", "fixed", 1.0),
                 ("u", "input", "continuous", 0.0), ("x", "output", "continuous", None),
-                ("fail_at", "parameter", "fixed", 1e300), ("input_order", "parameter", "fixed", 3.0)],
+                ("fail_at", "parameter", "fixed", 1e300), ("input_order", "parameter", "fixed", 3.0),
+                ("nan_at", "parameter", "fixed", 1e300)],
     "static": [("k1", "parameter", "fixed", 1.0), ("k2", "parameter", "fixed", 0.0), ("u1", "input", "continuous", 0.0),
                ("u2", "input", "continuous", 0.0), ("y", "output", "continuous", None),
                ("input_order", "parameter", "fixed", 3.0)],

@@ -31,7 +31,7 @@ def scenario_dirs() -> list[Path]:
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
-NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--radius")
+NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius")
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
@@ -100,14 +100,20 @@ def _parser() -> argparse.ArgumentParser:
                           "(`emcosim info SCENARIO` lists every variable). Default: every output connector "
                           "and every unconnected input, so each connected value is recorded once (a "
                           "connection's two ends carry the same value)")
-    run.add_argument("--tolerance", type=float,
-                     help="choose the communication steps so that the recorded variables keep this relative error "
-                          "over the run (FMU-state rollback, a shadow copy for the error estimate); the step size "
-                          "is then the first step")
-    run.add_argument("--max-step", type=float, help="largest step with --tolerance [s] (default: a fiftieth of the run)")
+    run.add_argument("--tolerance", type=float, metavar="TOL",
+                     help="relative error [1, dimensionless, e.g. 1e-3] that every recorded variable keeps over "
+                          "the run, measured against the largest magnitude it reaches: the communication steps are "
+                          "chosen for it (FMU-state rollback, a shadow copy of the FMUs for the error estimate) and "
+                          "--step-size is the first step [s]; the run prints the steps taken and rejected and the "
+                          "estimated error. Needs FMUs with canGetAndSetFMUstate")
+    run.add_argument("--max-step", type=float, metavar="H",
+                     help="largest communication step with --tolerance [s] (default: a fiftieth of the run)")
     run.add_argument("--coupling-order", type=int, choices=range(0, 4), metavar="K",
-                     help="derivatives passed on the connections (0: zero-order hold; default: as many as both "
-                          "ends of a connection declare)")
+                     help="highest time derivative of a connected value handed to its input [0..3]: 0 holds the "
+                          "value over a step (zero-order hold), K >= 1 passes the derivatives 1..K [unit of the "
+                          "value per s^k] so the input follows a polynomial of degree K. Default: as many as both "
+                          "ends of a connection declare (maxOutputDerivativeOrder, canInterpolateInputs), plus one "
+                          "estimated by backward difference where the target takes it")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
@@ -243,6 +249,7 @@ def cmd_run(args) -> int:
 
     _positive(args.step_size, "--step-size")
     _positive(args.tolerance, "--tolerance")
+    _positive(args.max_step, "--max-step")
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:

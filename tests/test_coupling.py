@@ -245,3 +245,19 @@ def _plain_master(s, n: int, h: float, tmp_path: Path) -> dict[str, list[float]]
         slave.terminate()
         slave.freeInstance()
     return out
+
+
+def test_a_loop_stiffer_than_the_step_is_held_not_extrapolated(fmu_dir):
+    """MEMS regulation with rbar_e = 100.5 Ohm (K_e != 0: du/dx_e ~ 3e9 V/Wb, a loop far stiffer than
+    the 4 us step): passing the controller's du/dt drove the plant out of its domain within a few
+    steps at any step down to 0.1 us (the gap closed), where the zero-order hold ran. The guard
+    (coupling._Guard) holds u there, and the run follows the monolithic closed loop."""
+    from emcosim.engine.ssd import read_scenario
+    from emcosim.paper.reference_check import monolithic, position_error, position_scale, samples_for
+    s = read_scenario(Path(__file__).parents[1] / "scenarios" / "mems_regulation_Dd0", fmu_dir=fmu_dir)
+    s.component("controller").parameters["rbar_e"].value = 100.5     # for the run and the reference
+    t_end, h = 1e-3, 4e-6
+    r = simulate(s, stop_time=t_end, step_size=h, record=["plant.q"])
+    assert r.time[-1] == pytest.approx(t_end)
+    ref = monolithic(s, stop_time=t_end, n_samples=samples_for(t_end, h, 1001))
+    assert position_error(r.time, r["plant.q"], ref, position_scale(s)) < 1e-3

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 from fmpy.fmi1 import FMICallException
 
+from . import dependencies
 from .errors import ScenarioError
 
 MAX_ORDER = 3            # the highest order the master passes when no order is asked for
@@ -182,6 +183,7 @@ class _Extrapolation:
         self.value_slots: list[int] = []     # slot (master's value buffer) of each input, for k = 0
         self.inputs = inputs
         self.history: list[tuple] = []       # (t, values of order k, estimate of order k + 1, e_hold, e_extrapolated)
+        self.guarded: list[int] = []         # index of each input in the plan's _Guard (-1: none)
 
     def __call__(self, t: float, values: list[float], slots: list[float]) -> None:
         now = [values[b] if b is not None else slots[v] for b, v in zip(self.below, self.value_slots)]
@@ -210,6 +212,83 @@ class _Extrapolation:
         del history[:-2]
 
 
+class _Guard:
+    """Hold an input (pass no derivatives to it) while its polynomial predicts worse than holding.
+
+    Over a step the target follows P(s) = u + u' s + ... from the source's derivatives at t_n. Where
+    the closed loop through that input is stiff at the communication step (a loop gain lambda with
+    lambda h >> 1, e.g. the MEMS voltage law with rbar_e != r_e: du/dx_e ~ 3e9 V/Wb), the polynomial
+    extrapolates a mode that decays (or flips sign) within the step, and explicit higher-order
+    coupling diverges at any step where the zero-order hold stays bounded. At every communication
+    point the master compares, per input, e_hold = |u(t_n) - u(t_{n-1})| with e_poly = |u(t_n) -
+    P_{n-1}(t_n - t_{n-1})| (sums fading by 0.8 per point, P from the source's derivatives whether
+    passed or not); in the asymptotic range e_poly / e_hold = O(h) and the derivatives are passed,
+    else (e_poly > 2 e_hold) the input is held (its derivatives set to 0) until the polynomial predicts
+    better again.
+    At the first point there is nothing to compare: see `first`. The history keeps the points before
+    t only (a rolled-back step does not count)."""
+
+    FADE = 0.8
+    MARGIN = 2.0         # held only where the polynomial errs clearly more (not on one noisy comparison)
+
+    def __init__(self, inputs: list[str], value_slots: list[int], derivative_slots: list[list[int]]):
+        self.inputs = inputs
+        self.value_slots = value_slots              # slot of each input in the master's value buffer
+        self.derivative_slots = derivative_slots    # per input: slots of its orders 1..K (source values x factor)
+        self.held = [False] * len(inputs)
+        self.history: list[tuple] = []              # (t, values, derivatives, e_hold sums, e_poly sums)
+
+    def decide(self, t: float, slots: list[float]) -> None:
+        history = self.history
+        while history and history[-1][0] >= t:
+            history.pop()
+        if not history:                             # nothing to compare yet (see `first`)
+            self.held = None
+            return
+        t_prev, before, ders, hold, poly = history[-1]
+        dt = t - t_prev
+        for i, s in enumerate(self.value_slots):
+            u = slots[s]
+            p, term = before[i], 1.0
+            for j, d in enumerate(ders[i], start=1):
+                term *= dt / j
+                p += d * term
+            self.held[i] = self.FADE * poly[i] + abs(u - p) > self.MARGIN * (self.FADE * hold[i] + abs(u - before[i]))
+
+    def first(self, derived: list[list[float]], slots: list[float], dt: float) -> None:
+        """At the first point (nothing to compare): hold an input whose polynomial would change it by
+        more than ten times its magnitude within one step dt (a source's derivative of a stiff loop;
+        an input at 0 has no magnitude to compare with and follows its polynomial)."""
+        held = []
+        for i, s in enumerate(self.value_slots):
+            u, change, term = slots[s], 0.0, 1.0
+            for j, d in enumerate(derived[i], start=1):
+                term *= dt / j
+                change += d * term
+            held.append(abs(change) > 10.0 * abs(u) > 0.0)
+        self.held = held
+
+    def record(self, t: float, slots: list[float], derived: list[list[float]]) -> None:
+        """After the derivatives of point t were resolved: derived[i], the source's derivatives of input i."""
+        history = self.history
+        now = [slots[s] for s in self.value_slots]
+        if history:
+            t_prev, before, ders, hold, poly = history[-1]
+            dt = t - t_prev
+            new_hold, new_poly = [], []
+            for i, u in enumerate(now):
+                p, term = before[i], 1.0
+                for j, d in enumerate(ders[i], start=1):
+                    term *= dt / j
+                    p += d * term
+                new_hold.append(self.FADE * hold[i] + abs(u - before[i]))
+                new_poly.append(self.FADE * poly[i] + abs(u - p))
+        else:
+            new_hold, new_poly = [0.0] * len(now), [0.0] * len(now)
+        history.append((t, now, derived, new_hold, new_poly))
+        del history[:-2]
+
+
 @dataclass
 class DerivativePlan:
     """The derivative transfers of a communication point, and where their values are kept.
@@ -226,6 +305,8 @@ class DerivativePlan:
     orders: dict[str, int]             # input -> degree of its polynomial (exact and extrapolated orders)
     values: list[float]
     extrapolations: list = field(default_factory=list)
+    guard: _Guard | None = None        # holds inputs whose polynomial predicts worse than holding
+    first_step: float = 0.0            # the run's first communication step (the guard's first decision)
 
     @property
     def max_order(self) -> int:
@@ -238,6 +319,26 @@ class DerivativePlan:
     def resolve(self, t: float, slots: list[float]):
         """Get and set every derivative of the communication point t (after the values; `slots`:
         the master's value buffer). Returns None, or (the transfer that failed, its FMICallException)."""
+        guard = self.guard
+        if guard is None:
+            return self._run(t, slots, None, None)
+        guard.decide(t, slots)
+        derived = [[0.0] * len(d) for d in guard.derivative_slots]
+        if guard.held is None:                   # the first point: the source's derivatives, then decide
+            guard.held = [False] * len(guard.inputs)
+            failure = self._run(t, slots, guard.held, derived)
+            if failure is not None:
+                return failure
+            guard.first(derived, slots, self.first_step)
+            if not any(guard.held):
+                guard.record(t, slots, derived)
+                return None
+        failure = self._run(t, slots, guard.held, derived)
+        if failure is None:
+            guard.record(t, slots, derived)
+        return failure
+
+    def _run(self, t: float, slots: list[float], held: list[bool] | None, derived: list | None):
         values = self.values
         try:
             for levels in self.passes:
@@ -249,14 +350,24 @@ class DerivativePlan:
                             values[s] = got[i]
                     for transfer, sources in sets:
                         out = transfer.values
-                        for i, (src, factor) in enumerate(sources):
+                        for i, (src, factor, g, k) in enumerate(sources):
                             v = values[src] * factor
+                            if g >= 0:
+                                derived[g][k - 1] = v
+                                if held[g]:
+                                    v = 0.0
                             out[i] = v
                             values[transfer.slots[i]] = v
                         transfer()
             for extrapolation in self.extrapolations:
                 transfer = extrapolation.transfer
                 extrapolation(t, values, slots)
+                if held is not None and any(g >= 0 and held[g] for g in extrapolation.guarded):
+                    for i, g in enumerate(extrapolation.guarded):
+                        if g >= 0 and held[g]:            # a held input gets no extrapolated order either,
+                            transfer.values[i] = 0.0
+                            values[transfer.slots[i]] = 0.0
+                    extrapolation.history.clear()         # and the backward differences start afresh
                 transfer()
         except FMICallException as exc:
             return transfer, exc
@@ -286,6 +397,14 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
         if orders[c.end] > 0:
             need[c.start] = max(need.get(c.start, 0), orders[c.end])
     n_levels = max(level.values(), default=-1) + 1
+    # the inputs that take exact derivatives and whose value the master holds in its buffer (_Guard),
+    # of FMUs that integrate them (an output not fed through from an input, i.e. a state): a
+    # feedthrough FMU uses its input derivatives for its output derivatives, which must stay exact
+    dynamic = {name for name, inst in instances.items()
+               if any(not ins for ins in dependencies.feedthrough(inst.model_description).values())}
+    guarded_inputs = [c.end for c in connections if orders[c.end] > 0 and c.end in (value_slot or {})
+                      and c.end_element in dynamic]
+    guarded = {name: i for i, name in enumerate(guarded_inputs)}
     passes = []
     for k in range(1, K + 1):
         levels = []
@@ -311,7 +430,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
             for comp, conns in targets.items():
                 t = _DerivativeTransfer(instances[comp], [(c.end_connector, k) for c in conns], getter=False)
                 t.slots = [slot_of((c.end, k)) for c in conns]
-                sets.append((t, [(slot_of((c.start, k)), c.factor) for c in conns]))
+                sets.append((t, [(slot_of((c.start, k)), c.factor, guarded.get(c.end, -1), k) for c in conns]))
             levels.append((gets, sets))
         passes.append(levels)
     extra = []
@@ -325,6 +444,11 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
         below = [slot_of((c.end, extrapolated[c.end] - 1)) if extrapolated[c.end] > 1 else None for c in conns]
         e = _Extrapolation(t, below, [c.end for c in conns])
         e.value_slots = [(value_slot or {}).get(c.end, -1) for c in conns]
+        e.guarded = [guarded.get(c.end, -1) for c in conns]
         extra.append(e)
     degree = dict(orders) | dict(extrapolated or {})
-    return DerivativePlan(passes, slot, degree, [0.0] * len(slot), extra)
+    guard = None
+    if guarded_inputs:
+        guard = _Guard(guarded_inputs, [value_slot[name] for name in guarded_inputs],
+                       [[slot_of((name, k)) for k in range(1, orders[name] + 1)] for name in guarded_inputs])
+    return DerivativePlan(passes, slot, degree, [0.0] * len(slot), extra, guard)

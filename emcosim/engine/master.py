@@ -305,6 +305,9 @@ class Simulation:
             mains.append(stepper)
             _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
             orders = self._settle_orders(stepper, plan, orders, coupling_order, t0)
+            first_step = h if tolerance is None else min(h, max_step)
+            if stepper.derivatives is not None:
+                stepper.derivatives.first_step = first_step       # coupling._Guard's first decision
             result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
                                for name, inst in self.instances.items() for m in inst.messages
                                if m.startswith("[warning]")]
@@ -318,6 +321,8 @@ class Simulation:
             shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop,
                                           coupling_order)
             steppers.append(shadow)
+            if shadow.derivatives is not None:
+                shadow.derivatives.first_step = 2 * first_step
             shadow.mirror(stepper, set(self.instances) - set(self._shadow_own))
             report = stepcontrol.run(stepper, shadow, result, t0, t_stop, tolerance, h, max_step,
                                      _degree(result.coupling_orders, plan.dynamic), progress, level)
@@ -826,6 +831,8 @@ class _Stepper:
             transfer.elapsed = 0.0
         for extrapolation in self.derivatives.extrapolations if self.derivatives is not None else []:
             extrapolation.history.clear()
+        if self.derivatives is not None and self.derivatives.guard is not None:
+            self.derivatives.guard.history.clear()
 
     def mirror(self, main: "_Stepper", shared: set[str]) -> None:
         """Read the outputs (and output derivatives) of the components `shared` with `main` from

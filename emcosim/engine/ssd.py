@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import atexit
 import codecs
+import copy
 import math
 import os
 import re
@@ -120,6 +121,15 @@ class Scenario:
                 return c
         raise ScenarioError(f"{self.path}: no component named '{name}' "
                             f"(components: {', '.join(c.name for c in self.components)})")
+
+
+def with_values(scenario: Scenario, values: dict[str, float]) -> Scenario:
+    """A copy of the scenario whose parameter sets hold `values` ("component.parameter" -> a Real value)."""
+    s = copy.deepcopy(scenario)
+    for name, value in values.items():
+        comp_name, _, var = name.partition(".")
+        s.component(comp_name).parameters[var] = Parameter(var, "Real", float(value))
+    return s
 
 
 # ---- reading --------------------------------------------------------------------------------------

@@ -43,6 +43,7 @@ class Maglev(OneDOFPlant):
         self.J_e = np.zeros((1, 1))
         self.R_e = np.array([[self.params["R_e"]]])
         self.G_e = np.eye(1)
+        self.q_max = self.c                             # admissible domain: q < c (below the magnet)
 
     @property
     def Gamma(self) -> np.ndarray:
@@ -87,11 +88,11 @@ class Maglev(OneDOFPlant):
         return 0.0 * q
 
     def domain_margin(self, eta):
-        return float(self.c - eta[0].real)
+        return float(self.q_max - eta[0].real)
 
     def check_state(self, eta):
         super().check_state(eta)
-        if not np.real(eta[0]) < self.c:
+        if not np.real(eta[0]) < self.q_max:
             raise DomainError(f"{self.name}: q = {np.real(eta[0]):.6g} m violates q < c "
                               f"(c = {self.c:g} m): the ball has reached the magnet")
 

@@ -44,6 +44,7 @@ class MEMS(OneDOFPlant):
         self.J_e = np.zeros((1, 1))
         self.R_e = np.array([[1.0 / self.r_e]])        # Section 7.1: R_e = 1/r_e
         self.G_e = np.array([[1.0 / self.r_e]])        # Section 7.1: G_e = 1/r_e
+        self.q_min = -self.c0                           # admissible domain: q + c0 > 0
 
     def V_s(self, q):
         return 0.5 * self.a1 * q ** 2 + 0.25 * self.a2 * q ** 4    # Section 7.1: V = a1 q^2/2 + a2 q^4/4
@@ -64,11 +65,11 @@ class MEMS(OneDOFPlant):
         return 2.0 / (self.c1 * (q + self.c0) ** 3)
 
     def domain_margin(self, eta):
-        return float(eta[0].real + self.c0)
+        return float(eta[0].real - self.q_min)
 
     def check_state(self, eta):
         super().check_state(eta)
-        if not np.real(eta[0]) + self.c0 > 0:
+        if not np.real(eta[0]) > self.q_min:
             raise DomainError(f"{self.name}: q = {np.real(eta[0]):.6g} m violates q + c0 > 0 "
                               f"(c0 = {self.c0:g} m): the capacitor gap has closed")
 

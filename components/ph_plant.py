@@ -231,6 +231,9 @@ class OneDOFPlant(EMPlant):
     n_e = 1
     constant_mass = True
     m: float
+    q_min: float = -math.inf
+    q_max: float = math.inf
+    """The model's admissible positions q_min < q < q_max (a subclass sets them from its parameters)."""
 
     # ---- the model in scalars (a concrete plant implements these) --------------------------------
     def V_s(self, q):
@@ -302,10 +305,10 @@ class OneDOFPlant(EMPlant):
         # functions and comparisons raise TypeError for them, and only then the complex forms run, so
         # the real path costs what it did.
         try:
-            finite = math.isfinite(q)
+            inside = self.q_min < q < self.q_max                # False for nan and inf too
         except TypeError:
-            finite = math.isfinite(q.real)
-        if not (finite and self.domain_margin((q, 0.0, 0.0)) > 0):
+            inside = self.q_min < q.real < self.q_max
+        if not inside:
             self.check_state(np.array([q, 0.0, 0.0]))                   # raises with the reason
         m, R_m = self.m, self.__dict__.get("_R_m_scalar")
         if R_m is None:                                     # plant matrices are fixed after construction

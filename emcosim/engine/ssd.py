@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import atexit
 import codecs
+import copy
 import math
 import os
 import re
@@ -120,6 +121,15 @@ class Scenario:
                 return c
         raise ScenarioError(f"{self.path}: no component named '{name}' "
                             f"(components: {', '.join(c.name for c in self.components)})")
+
+
+def with_values(scenario: Scenario, values: dict[str, float]) -> Scenario:
+    """A copy of the scenario whose parameter sets hold `values` ("component.parameter" -> a Real value)."""
+    s = copy.deepcopy(scenario)
+    for name, value in values.items():
+        comp_name, _, var = name.partition(".")
+        s.component(comp_name).parameters[var] = Parameter(var, "Real", float(value))
+    return s
 
 
 # ---- reading --------------------------------------------------------------------------------------
@@ -364,23 +374,25 @@ def _parse(path: Path, comments: bool = False, insert_comments: bool = False):
         raise ScenarioError(f"{path}: file not found") from None
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    target = _Comments(insert_comments)
     try:
-        parser = ET.XMLParser(target=target)
-        parser.feed(data)
-        root = parser.close()
+        root, found = _parse_xml(data, insert_comments)
     except (ET.ParseError, ValueError) as exc:          # ValueError: "multi-byte encodings are not supported"
         text = _decode_declared(data)
         if text is None:
             raise ScenarioError(f"{path}: malformed XML ({exc})") from None
-        target = _Comments(insert_comments)
         try:
-            parser = ET.XMLParser(target=target)
-            parser.feed(text)
-            root = parser.close()
+            root, found = _parse_xml(text, insert_comments)
         except ET.ParseError as exc2:
             raise ScenarioError(f"{path}: malformed XML ({exc2})") from None
-    return (root, target.comments) if comments else root
+    return (root, found) if comments else root
+
+
+def _parse_xml(source: bytes | str, insert_comments: bool):
+    """(root element, comments) of an XML document given as bytes or as decoded text."""
+    target = _Comments(insert_comments)
+    parser = ET.XMLParser(target=target)
+    parser.feed(source)
+    return parser.close(), target.comments
 
 
 _DECLARATION = re.compile(rb"""^<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z][A-Za-z0-9._-]*)["']""")

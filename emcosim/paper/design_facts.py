@@ -15,9 +15,8 @@ import numpy as np
 from components import certificates
 from components.monolithic import ClosedLoop
 
-from ..engine.ssd import Scenario
+from ..engine.ssd import Scenario, with_values
 from .certify import Design, design_from_scenario
-from .sweep import with_values
 
 
 def design(scenario: Scenario, values: dict[str, float] | None = None) -> Design:

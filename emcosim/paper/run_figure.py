@@ -21,7 +21,7 @@ def run_figure(scenario: Scenario, result, start_values: dict | None = None) -> 
     controller FMU of this suite) or the result lacks the plant state or the input."""
     from . import design_facts
     from .reproduce import plant_and_controller, run_from_result
-    from .sweep import with_values
+    from ..engine.ssd import with_values
 
     try:
         plant, controller = plant_and_controller(scenario)

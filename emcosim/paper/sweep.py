@@ -26,7 +26,6 @@ the sweep goes on. Finished rows are appended to the output folder's sweep.csv a
 from __future__ import annotations
 
 import atexit
-import copy
 import csv
 import itertools
 import sys
@@ -40,10 +39,8 @@ from typing import Iterator, TextIO
 import numpy as np
 
 from ..engine.errors import ScenarioError
-from ..engine.ssd import Parameter, Scenario, finite_number, read_scenario
-
-METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
-"""The metrics of report.run_metrics put in the table (initial_error is kept too, not plotted)."""
+from ..engine.ssd import Scenario, finite_number, read_scenario, with_values
+from .sweep_output import METRICS, columns
 
 
 # ---- the specification of a sweep ----------------------------------------------------------------
@@ -169,16 +166,6 @@ def close_sessions() -> int:
     for session in sessions:
         session.close()
     return len(sessions)
-
-
-def with_values(scenario: Scenario, values: dict[str, float]) -> Scenario:
-    """A copy of the scenario whose parameter sets hold `values` (used to compute the controller's
-    target eta*(t) for the run's own gains)."""
-    s = copy.deepcopy(scenario)
-    for name, value in values.items():
-        comp_name, _, var = name.partition(".")
-        s.component(comp_name).parameters[var] = Parameter(var, "Real", float(value))
-    return s
 
 
 def metrics_of(scenario: Scenario, values: dict[str, float], result) -> dict[str, float]:
@@ -352,7 +339,6 @@ class RowStream:
     complete sweep then writes the table in run order over it (sweep_output.write_table)."""
 
     def __init__(self, path: Path, names: list[str]):
-        from .sweep_output import columns
         self.columns = columns([{n: 0.0 for n in names}])
         self.file = open(path, "w", newline="")
         self.writer = csv.writer(self.file)

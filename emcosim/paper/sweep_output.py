@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from .report import finite_or_none
-from .sweep import METRICS
+
+METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
+"""The metrics of report.run_metrics put in the table (initial_error is kept too, not plotted)."""
 
 METRIC_LABELS = {
     "settling_time_2pct": ("time into the 2 % band", "s"),

@@ -53,20 +53,22 @@ def main(argv=None) -> None:
     print(f"u_scalar: components/ at {args.before} (before) and the working tree (after); best of {args.repeat} "
           f"alternating passes of {args.n} calls.\n")
     print(f"{'controller':20s} {'before us':>10s} {'after us':>10s} {'after/before':>13s} | {'du along v us':>13s} "
-          f"{'du / u':>7s}")
+          f"{'du / u':>7s} {'du after/before':>16s}")
     for name, gains, x in CASES:
         old, new = before.controller(name, gains), catalog.controller(name, gains)
         jet = tuple(x[3:]) if new.tracking else None
         v = [1.0] * len(x)
         calls = {"before": lambda: old.u_scalar(x[0], x[1], x[2], jet),
                  "after": lambda: new.u_scalar(x[0], x[1], x[2], jet),
+                 "derivative before": lambda: old.u_derivative(x, v),
                  "derivative": lambda: new.u_derivative(x, v)}
         best = {k: float("inf") for k in calls}
         for _ in range(args.repeat):
             for key, call in calls.items():
                 best[key] = min(best[key], timeit.timeit(call, number=args.n) / args.n * 1e6)
         print(f"{name:20s} {best['before']:10.2f} {best['after']:10.2f} {best['after'] / best['before']:12.2f}x | "
-              f"{best['derivative']:13.2f} {best['derivative'] / best['after']:6.1f}x")
+              f"{best['derivative']:13.2f} {best['derivative'] / best['after']:6.1f}x "
+              f"{best['derivative'] / best['derivative before']:15.2f}x")
 
 
 if __name__ == "__main__":

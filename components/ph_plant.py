@@ -301,14 +301,9 @@ class OneDOFPlant(EMPlant):
         whose real root is x_e* = s sqrt(2 F* / g), g = -Psi'(q*), s = x_e_sign, when F* / g > 0.
         Differentiating x_e*^2 = 2 F* / g in time: x_e*' = (F*' g - F* g') / (x_e* g^2).
         """
-        # q and the jet may be complex (complex-step derivatives, Controller.u_derivative): math's
-        # functions and comparisons raise TypeError for them, and only then the complex forms run, so
-        # the real path costs what it did.
-        try:
-            inside = self.q_min < q < self.q_max                # False for nan and inf too
-        except TypeError:
-            inside = self.q_min < q.real < self.q_max
-        if not inside:
+        # q and the jet may be complex (complex-step derivatives, Controller.u_derivative): the checks
+        # compare real parts (.real of a float is the float) and the square root is cmath's for them.
+        if not self.q_min < q.real < self.q_max:                 # False for nan and inf too
             self.check_state(np.array([q, 0.0, 0.0]))                   # raises with the reason
         m, R_m = self.m, self.__dict__.get("_R_m_scalar")
         if R_m is None:                                     # plant matrices are fixed after construction
@@ -318,17 +313,10 @@ class OneDOFPlant(EMPlant):
         g = -self.dpsi(q)
         g_dot = -self.d2psi(q) * qd
         ratio = 2.0 * force / g
-        try:
-            feasible = ratio > 0
-        except TypeError:
-            feasible = ratio.real > 0
-        if not feasible:
+        if not ratio.real > 0:
             raise ValueError(
                 f"{self.name}: infeasible reference at q* = {q:.6g}: no real x_e* solves "
                 f"-1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) = {force:.6g} "
                 f"(needs (m q*'' + R_m q*' + V'(q*)) / (-Psi'(q*)) > 0)")
-        try:
-            x_e = self.x_e_sign * math.sqrt(ratio)
-        except TypeError:
-            x_e = self.x_e_sign * cmath.sqrt(ratio)
+        x_e = self.x_e_sign * (cmath.sqrt(ratio) if isinstance(ratio, complex) else math.sqrt(ratio))
         return q, m * qd, x_e, (force_dot * g - force * g_dot) / (x_e * g * g)

@@ -13,6 +13,7 @@ from .em_fmu_framework import REFERENCE_JET, EMSlave
 
 KIND_CODES = catalog.REFERENCE_KINDS
 OUTPUTS = REFERENCE_JET
+OUTPUT_INDEX = {name: k for k, (name, _, _) in enumerate(OUTPUTS)}      # jet output -> its order k0
 
 
 class ReferenceSlave(EMSlave):
@@ -30,6 +31,8 @@ class ReferenceSlave(EMSlave):
         self.reference = None
         self._jet_time = None
         self._jet = None
+        self._derivatives_time = None
+        self._derivatives: tuple[float, ...] = ()
 
     def make_reference(self) -> references.Reference:
         kind = self.values["kind"]
@@ -40,7 +43,7 @@ class ReferenceSlave(EMSlave):
 
     def initialize(self) -> None:
         self.reference = self.make_reference()
-        self._jet_time = None
+        self._jet_time = self._derivatives_time = None
 
     def jet(self) -> tuple[float, float, float, float]:
         if self._jet_time != self.time or self.reference is None:
@@ -54,7 +57,15 @@ class ReferenceSlave(EMSlave):
 
     # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
     def output_derivative(self, name: str, order: int) -> float:
-        """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order)."""
-        k = [n for n, _, _ in OUTPUTS].index(name) + order
-        reference = self.reference if self.reference is not None else self.make_reference()
-        return reference.derivatives(self.time, k)[k]
+        """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order).
+        q*, ..., q*^(3 + max order) are computed once per communication point: a master asks for every
+        output at every order in one call (12 values)."""
+        return self.all_derivatives()[OUTPUT_INDEX[name] + order]
+
+    def all_derivatives(self) -> tuple[float, ...]:
+        """(q*, q*', ..., q*^(3 + max_output_derivative_order)) at the current communication point."""
+        if self._derivatives_time != self.time or self.reference is None:
+            reference = self.reference if self.reference is not None else self.make_reference()
+            self._derivatives = reference.derivatives(self.time, len(OUTPUTS) - 1 + self.max_output_derivative_order)
+            self._derivatives_time = self.time if self.reference is not None else None
+        return self._derivatives

@@ -158,6 +158,30 @@ def test_reference_output_derivatives(fmus):
             assert got == pytest.approx(fd, rel=1e-8)
 
 
+def test_reference_output_derivatives_follow_time_and_restored_states(fmus):
+    """The FMU computes the derivatives once per communication point: after a further step, and after
+    fmi2SetFMUstate back to the earlier point, every order is that of the FMU's current time."""
+    slave = Slave(fmus["Reference"])
+    assert slave.init() == 0
+    ref = catalog.reference("sinusoid", {})
+    outputs = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
+    vrs = [slave.vr[name] for name in outputs for _ in (1, 2, 3)]
+    orders = [n for _ in outputs for n in (1, 2, 3)]
+
+    def check(t: float) -> None:
+        exact = ref.derivatives(t, 6)
+        got = slave.fmu.getRealOutputDerivatives(vrs, orders)
+        np.testing.assert_allclose(got, [exact[k + n] for k in range(4) for n in (1, 2, 3)], rtol=1e-14)
+
+    assert slave.step(0.0, 0.004) == 0
+    check(0.004)
+    state = slave.fmu.getFMUstate()
+    assert slave.step(0.004, 0.003) == 0
+    check(0.007)
+    slave.fmu.setFMUstate(state)
+    check(0.004)
+
+
 # ---- the same calls from C -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def c_calls(tmp_path_factory):

@@ -31,7 +31,7 @@ def scenario_dirs() -> list[Path]:
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
-NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--radius")
+NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius")
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
@@ -100,9 +100,20 @@ def _parser() -> argparse.ArgumentParser:
                           "(`emcosim info SCENARIO` lists every variable). Default: every output connector "
                           "and every unconnected input, so each connected value is recorded once (a "
                           "connection's two ends carry the same value)")
-    run.add_argument("--tolerance", type=float,
-                     help="error-controlled communication steps (step doubling with FMU-state rollback); "
-                          "the step size is then the maximum step")
+    run.add_argument("--tolerance", type=float, metavar="TOL",
+                     help="relative error [1, dimensionless, e.g. 1e-3] that every recorded variable keeps over "
+                          "the run, measured against the largest magnitude it reaches: the communication steps are "
+                          "chosen for it (FMU-state rollback, a shadow copy of the FMUs for the error estimate) and "
+                          "--step-size is the first step [s]; the run prints the steps taken and rejected and the "
+                          "estimated error. Needs FMUs with canGetAndSetFMUstate")
+    run.add_argument("--max-step", type=float, metavar="H",
+                     help="largest communication step with --tolerance [s] (default: a fiftieth of the run)")
+    run.add_argument("--coupling-order", type=int, choices=range(0, 4), metavar="K",
+                     help="highest time derivative of a connected value handed to its input [0..3]: 0 holds the "
+                          "value over a step (zero-order hold), K >= 1 passes the derivatives 1..K [unit of the "
+                          "value per s^k] so the input follows a polynomial of degree K. Default: as many as both "
+                          "ends of a connection declare (maxOutputDerivativeOrder, canInterpolateInputs), plus one "
+                          "estimated by backward difference where the target takes it")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
@@ -238,6 +249,7 @@ def cmd_run(args) -> int:
 
     _positive(args.step_size, "--step-size")
     _positive(args.tolerance, "--tolerance")
+    _positive(args.max_step, "--max-step")
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:
@@ -257,6 +269,7 @@ def cmd_run(args) -> int:
         with sink:
             result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
                               start_values=start_values, record=record, progress=bar, tolerance=args.tolerance,
+                              coupling_order=args.coupling_order, max_step=args.max_step,
                               sink=sink, max_steps=args.max_steps or MAX_STEPS)
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
@@ -272,6 +285,8 @@ def cmd_run(args) -> int:
             failure.args = (f"{failure}; {sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}",)
         raise failure
     print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {args.plot}" if args.plot else ""))
+    if getattr(result, "step_control", None) is not None:
+        print(f"{scenario.name}: {result.step_control.summary()}")
     return 0
 
 

@@ -67,7 +67,7 @@ def test_the_issues_nan_run_ends_with_the_controllers_error(fmu_dir, tmp_path, c
     """The issue's run: the controller cannot compute u at t = 3 ms. It used to return NaN with fmi2OK;
     now the FMU answers fmi2Error with the reason, and the run ends with the rows before it kept."""
     out = tmp_path / "x.csv"
-    line = error_line(["run", "maglev_tracking_D0_R2.82", "--set", "reference.omega=200", "--stop-time", "0.003",
+    line = error_line(["run", "maglev_tracking_D0_R2.82", "--set", "reference.omega=200", "--stop-time", "0.003", "--step-size", "0.0005",
                        "--fmu-dir", str(fmu_dir), "-o", str(out)], capsys)
     assert "component 'controller' failed in fmi2GetReal at t = 0.003 s" in line, line
     assert "Maglev_Theorem3.fmu" in line and "infeasible reference" in line, line

@@ -1,21 +1,23 @@
 """The co-simulation master: runs an SSP scenario of FMI 2.0 co-simulation FMUs with fmpy.
 
-At each communication point t_n = t0 + n h the master
+At each communication point t_n the master
 
 1. resolves outputs in the order of the dependency graph (`dependencies.levels`): it gets the
    outputs of level 0 (states, sources), sets the inputs they feed, gets the outputs of level 1
    (direct feedthrough of those inputs), and so on; a static controller thus acts on the plant
    state of the same instant, with no extra delay (Gauss-Seidel within the instant);
-2. records the chosen variables at t_n;
-3. steps every FMU from t_n to t_{n+1} with its inputs held constant.
+2. where both ends of a connection declare it, resolves the output derivatives in the same order
+   and hands them to the inputs (coupling.py: the target then follows a polynomial over the step
+   instead of holding the value); FMUs that declare none hold their inputs (zero-order hold);
+3. records the chosen variables at t_n;
+4. steps every FMU from t_n to t_{n+1}.
 
 Initialization: parameter values are set after instantiation, then in initialization mode the
 outputs are propagated to the inputs in the same order, and initialization mode is left.
 
-Optionally (`tolerance`), the step is error controlled by step doubling with FMU-state rollback
-(fmi2GetFMUstate/fmi2SetFMUstate): one step of size H is compared with two of size H/2 on the
-recorded outputs; the step is accepted when the difference, scaled per variable, is below the
-tolerance, and H adapts (first-order controller, since the input hold is first order).
+Communication points: fixed, t_n = t0 + n h; or, with a tolerance, chosen by stepcontrol.py so that
+the recorded variables keep that relative error over the run (FMU-state rollback, a shadow copy of
+the FMUs for the global error estimate).
 
 Every Real value the master gets from an FMU or sets on one is checked: a NaN or infinity ends the
 run with a SimulationError naming the variable and the time (an FMU may return one with fmi2OK).
@@ -39,7 +41,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from fmpy import calloc, free
 
-from . import dependencies, tempdirs, units
+from . import coupling, dependencies, stepcontrol, tempdirs, units
 from .errors import ScenarioError, SimulationError
 from .results import Result, ResultFile
 from .ssd import Scenario, extract_archive, parse_value
@@ -82,6 +84,7 @@ class _Transfer:
         self.function = f"{prefix}{type_}"
         self.call = inst.slave._functions[self.function]     # the raw ctypes function
         self.n = len(vrs)
+        self.args = (inst.slave.component, self.vr, self.n, self.values)   # plans are rebuilt with the instances
         self.elapsed = 0.0                                     # wall time inside the FMU
         self.getter = getter
         self.real = type_ == "Real"
@@ -93,7 +96,7 @@ class _Transfer:
         if self.real and not self.getter:
             self._check_finite()
         tic = time.perf_counter()
-        status = self.call(self.inst.slave.component, self.vr, self.n, self.values)
+        status = self.call(*self.args)
         self.elapsed += time.perf_counter() - tic
         if status > 1:
             raise FMICallException(self.function, status)
@@ -124,6 +127,22 @@ class NonFiniteValue(Exception):
                 f"(after the connection's transformation) is not finite")
 
 
+class _Mirror:
+    """A get of the shadow copy (stepcontrol.py) from a source it shares with the main copy: the
+    values the main copy read at the same communication point, copied instead of asked again."""
+
+    def __init__(self, transfer, source: list, source_slots: list[int]):
+        self.inst, self.slots, self.function = transfer.inst, transfer.slots, transfer.function
+        self.values = [0.0] * len(source_slots)
+        self.source, self.source_slots = source, source_slots
+        self.elapsed = 0.0
+
+    def __call__(self) -> None:
+        values, source = self.values, self.source
+        for i, s in enumerate(self.source_slots):
+            values[i] = source[s]
+
+
 @dataclass
 class Plan:
     """What the master does at a communication point, precomputed."""
@@ -132,19 +151,31 @@ class Plan:
     record: list                     # extra gets for recorded variables that are not connected outputs
     columns: list[str]               # recorded full names
     column_slots: list[int]          # slot of each column in the value buffer
+    level: dict = field(default_factory=dict)      # connected output -> dependency level
+    depends: dict = field(default_factory=dict)    # full output name -> full inputs it depends on
+    input_slots: list = field(default_factory=list)  # [(connected input full name, value slot)]
+    dynamic: set = field(default_factory=set)      # components with an output not fed through from an input
+    slot: dict = field(default_factory=dict)       # full name -> slot in the value buffer
 
 
 def simulate(scenario: Scenario, stop_time: float | None = None, step_size: float | None = None,
              start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
              progress: Callable[[float], None] | None = None, tolerance: float | None = None,
-             timing: dict | None = None, sink: ResultFile | None = None, max_steps: float = MAX_STEPS) -> Result:
+             timing: dict | None = None, coupling_order: int | None = None,
+             max_step: float | None = None, sink: ResultFile | None = None,
+             max_steps: float = MAX_STEPS) -> Result:
     """Run `scenario` once and return the recorded values at every communication point.
 
     start_values: "component.variable" -> value (text or number), overriding the .ssv values.
     record: full variable names to record; default: every connector of the scenario.
     progress: called with the fraction done (0..1) now and then.
-    tolerance: if given, error-controlled communication steps (step doubling with rollback);
-        step_size is then the initial and the maximum step.
+    tolerance: if given, the communication steps are chosen so that the recorded variables keep
+        this relative error over the run (stepcontrol.py); step_size is then the first step and
+        max_step (default: a fiftieth of the run) the largest. `result.step_control` reports the
+        steps taken and rejected and the estimated error.
+    coupling_order: derivatives passed on the connections (coupling.py): None (default) for as
+        many as both ends of a connection declare (up to coupling.MAX_ORDER), 0 for a zero-order
+        hold everywhere, k to use at most k.
     timing: if a dict is given, the master fills in the wall time of the run ('total', from
         initialization to the end), the part spent inside FMU calls ('fmu'), the number of
         communication steps ('steps') and FMUs ('fmus'), the time inside each FMU ('per_fmu',
@@ -162,7 +193,7 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
     with Simulation(scenario) as simulation:
         return simulation.run(stop_time=stop_time, step_size=step_size, start_values=start_values,
                               record=record, progress=progress, tolerance=tolerance, timing=timing,
-                              sink=sink, max_steps=max_steps)
+                              coupling_order=coupling_order, max_step=max_step, sink=sink, max_steps=max_steps)
 
 
 def experiment(scenario: Scenario, stop_time: float | None, step_size: float | None,
@@ -209,6 +240,10 @@ class Simulation:
         self._call = call or (lambda fn: fn())
         self._workdirs: list[str] = []
         self._plans: dict = {}
+        self._shadow: dict[str, Instance] | None = None     # the copy for error estimation (stepcontrol)
+        self._shadow_own: list[str] = []                     # its own instances (the others are shared)
+        self._shadow_used = False
+        self._accepted: dict[str, int] = {}                  # input derivative orders found accepted
         self.instances = load(scenario)
         self.connections = check_connections(scenario, self.instances)
         try:
@@ -224,6 +259,7 @@ class Simulation:
         self._call(instantiate_all)
         self.instantiations += 1
         self._plans.clear()                   # plans hold the instances' C handles
+        self._free_shadow()
         self.runs = 0
 
     def _reset(self) -> None:
@@ -240,40 +276,171 @@ class Simulation:
     def run(self, stop_time: float | None = None, step_size: float | None = None,
             start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
             progress: Callable[[float], None] | None = None, tolerance: float | None = None,
-            timing: dict | None = None, sink: ResultFile | None = None, max_steps: float = MAX_STEPS) -> Result:
+            timing: dict | None = None, coupling_order: int | None = None,
+            max_step: float | None = None, sink: ResultFile | None = None,
+            max_steps: float = MAX_STEPS) -> Result:
         """Run the scenario once; the arguments and errors are those of `simulate`."""
         t0, t_stop, h = experiment(self.scenario, stop_time, step_size, max_steps)
+        if tolerance is not None:
+            stepcontrol.check_tolerance(tolerance)
+            max_step = (t_stop - t0) / 50 if max_step is None else max_step
+            if not (math.isfinite(max_step) and max_step > 0):
+                raise ScenarioError(f"maximum step {max_step} must be positive")
         parameters = parameter_values(self.scenario, self.instances, start_values or {})
-        if self.runs > 0:
-            self._reset()
-        self.runs += 1
-        key = None if record is None else tuple(record)
-        if key not in self._plans:
-            self._plans[key] = _plan(self.scenario, self.instances, self.connections, record)
-        plan = self._plans[key]
-        result = Result(plan.columns, sink=sink)
-        slots = [0.0] * _n_slots(plan)
         tic = time.perf_counter()
-        stepper = _Stepper(self.scenario, self.instances, plan, slots)
-        _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
-        result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}" for name, inst in self.instances.items()
-                           for m in inst.messages if m.startswith("[warning]")]
-        if tolerance is None:
-            _run_fixed(stepper, result, t0, t_stop, h, progress)
-        else:
-            _run_adaptive(stepper, result, t0, t_stop, h, tolerance, progress)
+        steppers, mains, level, first = [], [], None, None
+        for attempt in range(1 if tolerance is None else 2):
+            if self.runs > 0:
+                self._reset()
+            self.runs += 1
+            plan = self._plan(record, self.instances)
+            orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
+                                                coupling_order, self._accepted)
+            if attempt and sink is not None:
+                sink.rewind()                         # the second pass replaces the first's rows
+            result = Result(plan.columns, sink=sink)
+            stepper = _Stepper(self.scenario, self.instances, plan, [0.0] * _n_slots(plan),
+                               self._derivatives(plan, orders, self.instances, coupling_order))
+            steppers.append(stepper)
+            mains.append(stepper)
+            _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
+            orders = self._settle_orders(stepper, plan, orders, coupling_order, t0)
+            first_step = h if tolerance is None else min(h, max_step)
+            if stepper.derivatives is not None:
+                stepper.derivatives.first_step = first_step       # coupling._Guard's first decision
+            result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
+                               for name, inst in self.instances.items() for m in inst.messages
+                               if m.startswith("[warning]")]
+            result.coupling_orders = dict(stepper.derivatives.orders) if stepper.derivatives is not None else dict(orders)
+            if tolerance is None:
+                _run_fixed(stepper, result, t0, t_stop, h, progress)
+                break
+            _check_state_support(self.instances)
+            if attempt == 0:
+                stepcontrol.check_rollback(stepper, t0, min(h, max_step))
+            shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop,
+                                          coupling_order)
+            steppers.append(shadow)
+            if shadow.derivatives is not None:
+                shadow.derivatives.first_step = 2 * first_step
+            shadow.mirror(stepper, set(self.instances) - set(self._shadow_own))
+            report = stepcontrol.run(stepper, shadow, result, t0, t_stop, tolerance, h, max_step,
+                                     _degree(result.coupling_orders, plan.dynamic), progress, level)
+            if first is not None:                     # the second run: report both
+                report.passes = 2
+                report.accepted += first.accepted
+                report.rejected += first.rejected
+            result.step_control = report
+            if report.next_level is None:
+                break
+            level, first = report.next_level, report
         if timing is not None:
             total = time.perf_counter() - tic
-            fmu = stepper.fmu_time()
-            timing.update(total=total, fmu=fmu, steps=stepper.n_steps, fmus=len(self.instances),
-                          per_fmu=stepper.fmu_times(),
-                          overhead_per_fmu_step=(total - fmu) / max(1, stepper.n_steps * len(self.instances)))
+            fmu = sum(s.fmu_time() for s in steppers)
+            per_fmu: dict[str, float] = {}
+            for s in steppers:
+                for name, v in s.fmu_times().items():
+                    per_fmu[name] = per_fmu.get(name, 0.0) + v
+            n_steps = sum(s.n_steps for s in mains)
+            timing.update(total=total, fmu=fmu, steps=n_steps, fmus=len(self.instances), per_fmu=per_fmu,
+                          overhead_per_fmu_step=(total - fmu) / max(1, n_steps * len(self.instances)))
         return result
+
+    def _settle_orders(self, stepper: "_Stepper", plan: Plan, orders: dict[str, int], requested: int | None,
+                       t0: float) -> dict[str, int]:
+        """FMI 2.0 declares canInterpolateInputs but not up to which derivative order: at the first
+        communication point a target that refuses an order k > 1 of fmi2SetRealInputDerivatives
+        (fmi2Error) is restored to its state before the call (fmi2SetFMUstate) and coupled at order
+        k - 1 from then on (`result.coupling_orders` gives the orders used; the FMU's refusal is not
+        kept among its messages)."""
+        while stepper.derivatives is not None:
+            slaves = [inst.slave for inst in self.instances.values()
+                      if inst.model_description.coSimulation.canGetAndSetFMUstate]
+            states = [s.getFMUstate() for s in slaves]
+            stepper.t = t0
+            stepper.resolve(with_derivatives=False)
+            failure = stepper.derivatives_resolve()
+            if failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
+                    max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate:
+                for s, st in zip(slaves, states):
+                    s.setFMUstate(st)
+            for s, st in zip(slaves, states):
+                s.freeFMUstate(st)
+            if failure is None:
+                break
+            transfer, exc = failure
+            k = max(transfer.order)
+            if transfer.function != "fmi2SetRealInputDerivatives" or k <= 1 or \
+                    not transfer.inst.model_description.coSimulation.canGetAndSetFMUstate:
+                stepper._failed(transfer, exc)
+            self._accepted[transfer.inst.name] = k - 1
+            messages = transfer.inst.messages
+            while messages and not messages[-1].startswith("[ok]"):
+                messages.pop()
+            orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
+                                                requested, self._accepted)
+            stepper.derivatives = self._derivatives(plan, orders, self.instances, requested)
+            stepper.reset_counters()
+        return orders
+
+    def _plan(self, record, instances) -> Plan:
+        key = (None if record is None else tuple(record), instances is self._shadow)
+        if key not in self._plans:
+            self._plans[key] = _plan(self.scenario, instances, self.connections, record)
+        return self._plans[key]
+
+    def _derivatives(self, plan: Plan, orders: dict[str, int], instances,
+                     requested: int | None) -> coupling.DerivativePlan | None:
+        extra = coupling.extrapolated_orders(instances, self.connections, orders, requested, self._accepted)
+        if not any(orders.values()) and not extra:
+            return None
+        key = ("derivatives", tuple(sorted(orders.items())), tuple(sorted(extra.items())), instances is self._shadow)
+        if key not in self._plans:
+            self._plans[key] = coupling.plan_derivatives(instances, self.connections, plan.level, orders, extra,
+                                                         plan.slot)
+        return self._plans[key]
+
+    def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float, requested: int | None) -> "_Stepper":
+        """The shadow copy for error estimation (stepcontrol.py): a second instance of every FMU with
+        connected inputs, sharing the sources (FMUs without connected inputs) with the main copy."""
+        fed = {c.end_element for c in self.connections}
+        if self._shadow is not None and self._shadow_used:
+            try:
+                for name in self._shadow_own:
+                    self._shadow[name].slave.reset()
+                    self._shadow[name].messages.clear()
+            except Exception:                 # noqa: BLE001 - any failure: a fresh shadow copy
+                self._free_shadow()
+        if self._shadow is None:
+            own = {name: inst for name, inst in load(self.scenario).items() if name in fed}
+
+            def instantiate_all() -> None:
+                for inst in own.values():
+                    _instantiate(inst, self._workdirs)
+            self._shadow = {name: own.get(name, inst) for name, inst in self.instances.items()}
+            self._shadow_own = list(own)
+            self._call(instantiate_all)
+        self._shadow_used = True
+        shadow = self._shadow
+        plan = self._plan(record, shadow)
+        own = self._shadow_own
+        stepper = _Stepper(self.scenario, shadow, plan, [0.0] * _n_slots(plan),
+                           self._derivatives(plan, orders, shadow, requested), stepped=own)
+        _initialize(self.scenario, {name: shadow[name] for name in own}, parameters, t0, t_stop, stepper)
+        return stepper
+
+    def _free_shadow(self) -> None:
+        for key in [k for k in self._plans if k[-1] is True]:     # plans over the shadow's instances
+            del self._plans[key]
+        for name in self._shadow_own:
+            _free(self._shadow[name])
+        self._shadow, self._shadow_own, self._shadow_used = None, [], False
 
     def close(self) -> None:
         """Free the FMU instances and delete their unpacked files."""
         for inst in self.instances.values():
             _free(inst)
+        self._free_shadow()
         for d in self._workdirs:
             shutil.rmtree(d, ignore_errors=True)
         self._workdirs.clear()
@@ -554,7 +721,10 @@ def _plan(scenario: Scenario, instances: dict[str, Instance], connections, recor
     fetched = set(level) | {c.end for c in connections}
     extra = [f for f in columns if f not in fetched]
     record_gets = _batches(instances, extra, slot_of, getter=True)
-    return Plan(stages, record_gets, columns, [slot_of(f) for f in columns])
+    dynamic = {name for name, inst in instances.items()
+               if any(not ins for ins in dependencies.feedthrough(inst.model_description).values())}
+    return Plan(stages, record_gets, columns, [slot_of(f) for f in columns], level, depends,
+                [(c.end, slot_of(c.end)) for c in connections], dynamic, slot)
 
 
 def _batches(instances, fulls: list[str], slot_of, getter: bool):
@@ -588,18 +758,25 @@ def _n_slots(plan: Plan) -> int:
 # ---- running --------------------------------------------------------------------------------------
 
 class _Stepper:
-    """Resolve, record and step; the hot loop of the master."""
+    """Resolve, record and step; the hot loop of the master.
 
-    def __init__(self, scenario: Scenario, instances: dict[str, Instance], plan: Plan, slots: list):
+    derivatives: the output-derivative transfers (coupling.DerivativePlan) resolved after the values
+    at every communication point, or None (zero-order hold). stepped: the components this stepper
+    steps (default: all; a shadow copy for error estimation leaves the shared sources out)."""
+
+    def __init__(self, scenario: Scenario, instances: dict[str, Instance], plan: Plan, slots: list,
+                 derivatives: coupling.DerivativePlan | None = None, stepped: list[str] | None = None):
         self.scenario, self.instances, self.plan, self.slots = scenario, instances, plan, slots
-        self.order = list(instances.values())
+        self.derivatives = derivatives
+        self.order = [inst for name, inst in instances.items() if stepped is None or name in stepped]
         self.do_step = [(inst, inst.slave._functions["fmi2DoStep"], inst.slave.component) for inst in self.order]
+        self.reset_counters()
         self.step_time = 0.0
         self.step_times = {inst.name: 0.0 for inst in self.order}
         self.n_steps = 0
         self.t = scenario.start_time
 
-    def resolve(self) -> None:
+    def resolve(self, with_derivatives: bool = True) -> None:
         slots = self.slots
         try:
             for gets, sets in self.plan.stages:
@@ -621,28 +798,72 @@ class _Stepper:
                 for i, s in enumerate(transfer.slots):
                     slots[s] = values[i]
         except FMICallException as exc:
-            inst = transfer.inst
-            raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in {exc.function} "
-                                  f"at t = {self.t:.9g} s{_last_message(inst)}") from None
+            self._failed(transfer, exc)
         except NonFiniteValue as exc:
             raise SimulationError(exc.message(self.t)) from None
+        if self.derivatives is not None and with_derivatives:
+            self._check_failure(self.derivatives_resolve())
+
+    def derivatives_resolve(self):
+        """Resolve the output derivatives at self.t (after the values): None, or (the transfer that
+        failed, its FMICallException); a derivative that is not finite ends the run."""
+        try:
+            return self.derivatives.resolve(self.t, self.slots)
+        except coupling.NonFiniteDerivative as exc:
+            raise SimulationError(exc.message(self.t)) from None
+
+    def _check_failure(self, failure) -> None:
+        if failure is not None:
+            self._failed(*failure)
+
+    def _failed(self, transfer, exc: FMICallException):
+        inst = transfer.inst
+        raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in {exc.function} "
+                              f"at t = {self.t:.9g} s{_last_message(inst)}") from None
 
     def row(self) -> list:
         slots = self.slots
         return [slots[s] for s in self.plan.column_slots]
 
+    def reset_counters(self) -> None:
+        """Plans (their transfers and extrapolation histories) are reused across runs: start afresh."""
+        for transfer in self.transfers():
+            transfer.elapsed = 0.0
+        for extrapolation in self.derivatives.extrapolations if self.derivatives is not None else []:
+            extrapolation.history.clear()
+        if self.derivatives is not None and self.derivatives.guard is not None:
+            self.derivatives.guard.history.clear()
+
+    def mirror(self, main: "_Stepper", shared: set[str]) -> None:
+        """Read the outputs (and output derivatives) of the components `shared` with `main` from
+        main's buffers; main resolves each communication point first."""
+        def values(gets):
+            return [(_Mirror(t, main.slots, [main.plan.slot[n] for n in names]) if t.inst.name in shared else t, names)
+                    for t, names in gets]
+        plan = self.plan
+        self.plan = dataclasses.replace(plan, stages=[(values(gets), sets) for gets, sets in plan.stages],
+                                        record=values(plan.record))
+        d, md = self.derivatives, main.derivatives
+        if d is not None and md is not None:
+            def derivatives(gets):
+                return [_Mirror(t, md.values, [md.slot[(f"{t.inst.name}.{v}", k)] for v, k in t.entries])
+                        if t.inst.name in shared else t for t in gets]
+            self.derivatives = dataclasses.replace(d, passes=[[(derivatives(gets), sets) for gets, sets in levels]
+                                                              for levels in d.passes])
+
+    def transfers(self) -> list:
+        """Every get/set transfer of a communication point (values, records, derivatives)."""
+        out = [t for gets, sets in self.plan.stages for t, _ in gets + sets] + [t for t, _ in self.plan.record]
+        return out + (self.derivatives.transfers() if self.derivatives is not None else [])
+
     def fmu_time(self) -> float:
-        transfers = [t for gets, sets in self.plan.stages for t, _ in gets + sets] + [t for t, _ in self.plan.record]
-        return self.step_time + sum(t.elapsed for t in transfers)
+        return self.step_time + sum(t.elapsed for t in self.transfers())
 
     def fmu_times(self) -> dict[str, float]:
-        """Wall time inside each FMU (doStep, get, set)."""
+        """Wall time inside each FMU (doStep, get, set, derivatives)."""
         out = dict(self.step_times)
-        for gets, sets in self.plan.stages:
-            for transfer, _ in gets + sets:
-                out[transfer.inst.name] += transfer.elapsed
-        for transfer, _ in self.plan.record:
-            out[transfer.inst.name] += transfer.elapsed
+        for transfer in self.transfers():
+            out[transfer.inst.name] = out.get(transfer.inst.name, 0.0) + transfer.elapsed
         return out
 
     def step(self, t: float, h: float) -> None:
@@ -675,7 +896,7 @@ def _initialize(scenario, instances, parameters, t0, t_stop, stepper: _Stepper) 
             raise ScenarioError(f"{inst.path.name}: component '{name}' refused {exc.function} "
                                 f"during initialization{_last_message(inst)}") from None
     try:
-        stepper.resolve()
+        stepper.resolve(with_derivatives=False)
     except SimulationError as exc:
         raise ScenarioError(f"initialization: {exc}") from None
     for name, inst in instances.items():
@@ -709,90 +930,14 @@ def _run_fixed(stepper: _Stepper, result: Result, t0: float, t_stop: float, h: f
         progress(1.0)
 
 
-def _check_rollback(stepper: _Stepper, slaves, t0: float, h: float) -> None:
-    """Step, restore the state, step again: both must give the same outputs, or an FMU does not
-    really restore its state (e.g. an integrator state kept outside its registered variables)."""
-    states = [s.getFMUstate() for s in slaves]
-    stepper.t = t0
-    stepper.resolve()
-    stepper.step(t0, h)
-    stepper.resolve()
-    first = stepper.row()
-    for s, st in zip(slaves, states):
-        s.setFMUstate(st)
-    stepper.t = t0
-    stepper.resolve()
-    stepper.step(t0, h)
-    stepper.resolve()
-    second = stepper.row()
-    for s, st in zip(slaves, states):
-        s.setFMUstate(st)
-        s.freeFMUstate(st)
-    stepper.t = t0
-    stepper.n_steps -= 2
-    if first != second:
-        bad = [c for c, a, b in zip(stepper.plan.columns, first, second) if a != b]
-        raise ScenarioError(f"error-controlled steps need FMU-state rollback, but repeating a restored step "
-                            f"changes {', '.join(bad[:4])}: an FMU does not restore its full state")
+def _degree(orders: dict[str, int], dynamic: set[str]) -> int:
+    """The coupling order that sets the global error: the lowest polynomial degree on the inputs of
+    FMUs that integrate them (stepcontrol.py), else on all inputs."""
+    integrated = [k for name, k in orders.items() if name.partition(".")[0] in dynamic]
+    return min(integrated or list(orders.values()) or [0])
 
 
-def _run_adaptive(stepper: _Stepper, result: Result, t0: float, t_stop: float, h_max: float,
-                  tolerance: float, progress) -> None:
-    """Step doubling with FMU-state rollback (see module docstring). Communication points are not
-    equidistant; each accepted point is recorded."""
-    for inst in stepper.order:
+def _check_state_support(instances: dict[str, Instance]) -> None:
+    for inst in instances.values():
         if not inst.model_description.coSimulation.canGetAndSetFMUstate:
             raise ScenarioError(f"{inst.path.name}: error-controlled steps need canGetAndSetFMUstate")
-    slaves = [inst.slave for inst in stepper.order]
-    _check_rollback(stepper, slaves, t0, h_max)
-    scale = None
-    t, h = t0, h_max
-    try:
-        stepper.t = t
-        stepper.resolve()
-        row = stepper.row()
-        result.append(t, row)
-        while t < t_stop - 1e-12 * max(1.0, abs(t_stop)):
-            h = min(h, t_stop - t)
-            if scale is None:
-                scale = [abs(v) for v in row]
-            states = [s.getFMUstate() for s in slaves]
-            stepper.step(t, h)                                   # one big step
-            stepper.t = t + h
-            stepper.resolve()
-            big = stepper.row()
-            for s, st in zip(slaves, states):
-                s.setFMUstate(st)
-            stepper.t = t
-            stepper.resolve()
-            stepper.step(t, h / 2)                               # two half steps
-            stepper.t = t + h / 2
-            stepper.resolve()
-            stepper.step(t + h / 2, h / 2)
-            stepper.t = t + h
-            stepper.resolve()
-            small = stepper.row()
-            scale = [max(sc, abs(v)) for sc, v in zip(scale, small)]
-            err = max((abs(a - b) / sc for a, b, sc in zip(big, small, scale) if sc > 0), default=0.0)
-            if err <= tolerance or h <= 1e-12 * max(1.0, abs(t)):
-                for s, st in zip(slaves, states):
-                    s.freeFMUstate(st)
-                t = t + h
-                row = small
-                result.append(t, row)
-                if progress is not None:
-                    progress((t - t0) / (t_stop - t0))
-            else:
-                for s, st in zip(slaves, states):
-                    s.setFMUstate(st)
-                    s.freeFMUstate(st)
-                stepper.t = t
-                stepper.resolve()
-            # first-order local error of the half-step pair ~ err: aim at 0.5 tolerance
-            factor = 0.9 * (0.5 * tolerance / err) ** 0.5 if err > 0 else 2.0
-            h = min(h_max, h * min(2.0, max(0.2, factor)))
-    except SimulationError as exc:
-        exc.result = result
-        raise
-    if progress is not None:
-        progress(1.0)

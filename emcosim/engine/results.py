@@ -194,6 +194,13 @@ class ResultFile:
         if self.pending >= FLUSH_BYTES or time.monotonic() - self.last_flush >= FLUSH_SECONDS:
             self.flush()
 
+    def rewind(self) -> None:
+        """Drop every row written so far (a run that starts over: the second pass of an
+        error-controlled run, engine/stepcontrol.py); the next `start` writes the header again."""
+        os.ftruncate(self.fd, 0)
+        self.buffer, self.header, self.pending = [], True, 0
+        self.written, self.rows, self.last_time = 0, 0, None
+
     def flush(self) -> None:
         """Hand the buffered rows to the operating system; an OSError (a full disk) keeps the
         complete rows that fit and raises SimulationError."""

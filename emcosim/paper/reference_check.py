@@ -11,6 +11,11 @@ co-simulation, normalised by the largest target position q*(t) (the reference, o
 over the scenario's whole horizon, so that a run over a shorter horizon is judged on the same
 scale (`position_scale`). The samples t_k are communication points (no interpolation: interpolating between communication points would add an O(h^2)
 error of its own). `samples_for` gives a monolithic grid that is a subset of the communication grid.
+
+Runs with error-controlled steps have communication points anywhere: `Truth` evaluates the
+monolithic solution at any time by cubic Hermite interpolation of its dense samples with the exact
+slope q' = f(eta, u(eta, t))_q of the closed loop, and measures the same norm at the run's own
+communication points.
 """
 from __future__ import annotations
 
@@ -23,6 +28,9 @@ from components.monolithic import Result as MonolithicResult
 from components.monolithic import simulate as simulate_monolithic
 
 from ..engine.ssd import Scenario
+
+TRUTH_SAMPLES = 20001           # samples of `Truth` (Hermite error ~ (dt lambda)^4 / 384 of a mode)
+HEAD = 0.01                     # `Truth` samples the first HEAD of the horizon as densely again
 
 
 @dataclass
@@ -98,3 +106,47 @@ def position_error(t: np.ndarray, q: np.ndarray, reference: MonolithicResult, sc
                          "(use samples_for to choose n_samples)")
     err = np.abs(np.asarray(q)[idx[match]] - reference.q[match])
     return float(np.max(err) / scale)
+
+
+@dataclass
+class Truth:
+    """The monolithic closed loop of a scenario, evaluable at any time in [0, t_end]: cubic Hermite
+    interpolation of dense samples with the exact slope, denser over the initial transient (`head`)."""
+
+    t_end: float
+    head: float                     # end of the densely sampled initial part [s]
+    q_head: object                  # scipy CubicHermiteSpline of the position over [0, head]
+    q_rest: object                  # ... over [0, t_end]
+    scale: float                    # position_scale of the scenario
+
+    def q(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        return np.where(t <= self.head, self.q_head(np.minimum(t, self.head)), self.q_rest(t))
+
+    def position_error(self, t, q) -> float:
+        """Normalised maximum position error (module doc) of a run at its own communication points."""
+        t, q = np.asarray(t, dtype=float), np.asarray(q, dtype=float)
+        if t[-1] > self.t_end * (1 + 1e-12):
+            raise ValueError(f"the run reaches t = {t[-1]:g} s beyond the reference's {self.t_end:g} s")
+        return float(np.max(np.abs(q - self.q(t))) / self.scale)
+
+
+def truth(scenario: Scenario, stop_time: float | None = None, n_samples: int = TRUTH_SAMPLES,
+          rtol: float = 1e-10, head: float = HEAD) -> Truth:
+    """The monolithic reference of `monolithic` over [0, stop_time] (default: the scenario's
+    horizon), sampled at n_samples points, and over its first `head` fraction at n_samples more."""
+    t_end = scenario.stop_time if stop_time is None else stop_time
+    return Truth(t_end, head * t_end, _spline(scenario, head * t_end, n_samples, rtol),
+                 _spline(scenario, t_end, n_samples, rtol), position_scale(scenario))
+
+
+def _spline(scenario: Scenario, t_end: float, n_samples: int, rtol: float):
+    from scipy.interpolate import CubicHermiteSpline
+
+    from components.monolithic import ClosedLoop
+
+    loop = monolithic_loop(scenario)
+    result = monolithic(scenario, t_end, n_samples, rtol)
+    closed = ClosedLoop(loop.controller, loop.reference)
+    slope = np.array([closed.rhs(t, eta)[0] for t, eta in zip(result.t, result.eta)])
+    return CubicHermiteSpline(result.t, result.q, slope)

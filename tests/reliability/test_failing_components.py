@@ -26,13 +26,13 @@ def fmu_folder(reliability_fmus):
     return reliability_fmus["MEMS"].parent
 
 
-@pytest.mark.parametrize("scenario, stop, sets, fmu, t_fail, words", [
-    ("mems_regulation_Dd0", "3e-4", ["plant.p_0=-5e-9"], "MEMS.fmu", "1e-05", ["q + c0 > 0", "gap has closed"]),
-    ("maglev_regulation_prop2", "0.5", ["plant.p_0=0.05"], "Maglev.fmu", "0.0055", ["q < c", "reached the magnet"]),
+@pytest.mark.parametrize("scenario, stop, step, sets, fmu, t_fail, words", [
+    ("mems_regulation_Dd0", "3e-4", "1e-5", ["plant.p_0=-5e-9"], "MEMS.fmu", "1e-05", ["q + c0 > 0", "gap has closed"]),
+    ("maglev_regulation_prop2", "0.5", "5e-4", ["plant.p_0=0.05"], "Maglev.fmu", "0.0055", ["q < c", "reached the magnet"]),
 ])
-def test_plant_leaving_its_domain(tmp_path, fmu_folder, tally, scenario, stop, sets, fmu, t_fail, words):
+def test_plant_leaving_its_domain(tmp_path, fmu_folder, tally, scenario, stop, step, sets, fmu, t_fail, words):
     out = tmp_path / "r.csv"
-    args = [scenario, "--fmu-dir", str(fmu_folder), "--stop-time", stop, "-o", str(out)]
+    args = [scenario, "--fmu-dir", str(fmu_folder), "--stop-time", stop, "--step-size", step, "-o", str(out)]
     for s in sets:
         args += ["--set", s]
     proc = emcosim_run(args)

@@ -114,7 +114,8 @@ def test_signal_stops_between_steps_and_keeps_the_rows(fmu_dir, tmp_path, tally,
     """The maglev loop (Python FMUs: the signal used to land inside an FMU's do_step) stopped after
     some seconds: exit 128 + signal, one error line, the rows in NAME.partial.csv, no NAME.csv."""
     out = tmp_path / "r.csv"
-    proc = popen(["run", "maglev_tracking_D0_R2.82", "--fmu-dir", str(fmu_dir), "-o", str(out), "--no-progress"])
+    proc = popen(["run", "maglev_tracking_D0_R2.82", "--fmu-dir", str(fmu_dir), "-o", str(out), "--no-progress",
+                  "--step-size", "5e-4"])                # 80000 steps: long enough to be stopped mid-run
     wait_for_rows("r.incomplete-*.csv", tmp_path, 100)
     time.sleep(1.0)
     proc.send_signal(signum)

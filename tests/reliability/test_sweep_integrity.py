@@ -39,7 +39,7 @@ def finished_rows(folder: Path) -> int:
 def test_interrupted_sweep_keeps_the_finished_runs(fmu_dir, tmp_path, tally):
     out = tmp_path / "sweep"
     proc = subprocess.Popen([sys.executable, "-m", "emcosim.cli", "sweep", "mems_regulation_Dd0", "--stop-time", "1e-3",
-                             "--grid", "controller.D_d=-1:0:40", "--workers", "1", "--out", str(out),
+                             "--grid", "controller.D_d=-1:0:40", "--step-size", "4e-6", "--workers", "1", "--out", str(out),
                              "--fmu-dir", str(fmu_dir)], cwd=str(ROOT), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 300

@@ -1,0 +1,275 @@
+"""Communication steps chosen for a global tolerance (`emcosim run --tolerance TOL`).
+
+What is controlled: the error of the recorded variables at the communication points, each relative
+to the largest magnitude it reaches in the run (the values seen, not a model's scale), over the whole
+run: the run aims at max_t |y(t) - y_exact(t)| / max_t |y(t)| of about TOL/2 for every recorded y.
+Nothing here knows the models; the error measures come from the FMUs' values.
+
+How (docs/scenarios.md, "Steps that keep a tolerance"):
+
+1. Local error: the extrapolation defect of the coupling. Over a step [t, t + h] a connected input
+   follows the polynomial the master handed over at t (its value, plus its derivatives with
+   higher-order coupling; coupling.py). At t + h the master reads the true value; the defect
+   d = max |u(t + h) - P(h)| / max_t |u| is the coupling error the step made, O(h^p) with p the
+   global order (coupling order + 1). It is measured on the inputs of FMUs that integrate them
+   (FMUs with an output not fed through from an input, i.e. with states; an FMU whose outputs all
+   depend on its inputs is treated as static: its inputs act through its outputs at the
+   communication points). A step with d > 2 eps is rejected: every FMU is rolled back
+   (fmi2SetFMUstate) and the step retried shorter. The next step is h (eps / d)^(1/p), in [h/5, 2h]:
+   every step makes a defect of about eps, an error per unit step (an input's defect acts on the
+   solution for as long as the step lasts).
+2. Global error: lockstep Richardson extrapolation. A shadow copy of the FMUs (FMUs without
+   connected inputs are shared: their outputs depend on time only) takes one step of 2h for every
+   two steps of h of the main copy, over the same communication points. Global errors go as h^p, so
+   the main copy's global error is E = |y_shadow - y_main| / (rho - 1) per recorded variable,
+   relative to its largest magnitude, with rho = 2^p, or the ratio of the two copies' defects over
+   the run where that is larger (a long step outside the asymptotic range). A long step whose
+   defect exceeds what a step of 2h may make (2^p * 2 eps) has left that range, typically the
+   stability limit of explicit coupling of a stiff loop: the step is rejected and halved, and that
+   bound is learnt (it rises by 2 % per step).
+3. Calibration: how much global error a defect level eps produces (what accumulates, how fast the
+   closed loop forgets) depends on the models. The run measures C = max_t E(t) (t - t0) / int eps
+   dt and keeps eps = min(aim, aim / C), aim = TOL/2. It starts at eps = aim and never rises
+   within a run (an estimate grows only after the error has accumulated: raising eps on a small
+   early estimate spends the budget in the initial transient).
+4. A second run: when the run's largest estimate ends outside [0.2, 1.5] TOL although the steps
+   were not held by the maximum step or the stability bound, the scenario is run again with
+   eps = aim / C from the first run's calibration (the global error is proportional to eps).
+
+Cost: the shadow copy adds half a step of every FMU with inputs per communication step, plus an
+FMU-state save of both copies per two steps (rollback). The report gives the steps taken and
+rejected, the runs, and the estimated error.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+from .errors import ScenarioError, SimulationError
+
+AIM = 0.5             # aim of the global error, relative to the tolerance
+REJECT = 2.0          # a step with a defect above REJECT * eps is retried
+SAFETY = 0.9
+GROW, SHRINK = 2.0, 0.2
+LOW, HIGH = 0.2, 1.5  # a run whose estimate ends outside [LOW, HIGH] * tolerance is run again
+SUBSTEPS = 2          # steps of the main copy per step of the shadow copy
+LEVEL_FLOOR = 1e-4    # eps never falls below this times the aim (a diverging estimate cannot stall the run)
+STABLE_GROWTH = 1.02  # a step bound learnt from an unstable long step rises this much per step
+
+
+@dataclass
+class StepReport:
+    """What the error-controlled run did."""
+
+    tolerance: float
+    coupling_order: int           # derivatives passed on the connections (0: zero-order hold)
+    accepted: int = 0             # communication steps taken
+    rejected: int = 0             # steps rolled back and retried (each of two communication steps)
+    h_min: float = math.inf       # smallest and largest communication step taken [s]
+    h_max: float = 0.0
+    estimated_error: float = 0.0  # largest global error estimate of the run (relative, see module doc)
+    level: float = 0.0            # final defect level eps
+    held: float = 0.0             # fraction of the steps held by the maximum step or the stability bound
+    passes: int = 1               # runs made (a second one when the first missed the aim, see `run`)
+    next_level: float | None = None   # the level a second run should take (None: none needed)
+
+    def summary(self) -> str:
+        again = f" in {self.passes} runs" if self.passes > 1 else ""
+        held = f", {100 * self.held:.0f}% held by the maximum step or stability" if self.held >= 0.05 else ""
+        return (f"{self.accepted} communication steps{again} ({self.rejected} rejected), steps {self.h_min:.3g} s to "
+                f"{self.h_max:.3g} s{held}, estimated error {self.estimated_error:.2g} (tolerance {self.tolerance:g}, "
+                f"coupling order {self.coupling_order})")
+
+
+def check_tolerance(tolerance: float) -> None:
+    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance < 1):
+        raise ScenarioError(f"tolerance {tolerance!r} must be a number between 0 and 1 (a relative error)")
+
+
+class _Defect:
+    """The extrapolation defect of the connected inputs of a copy (module docstring, 1)."""
+
+    def __init__(self, stepper):
+        self.slots = stepper.slots
+        d = stepper.derivatives
+        inputs = stepper.plan.input_slots
+        dynamic = [(name, s) for name, s in inputs if name.partition(".")[0] in stepper.plan.dynamic]
+        self.inputs = [(s, d.polynomial(name) if d is not None else []) for name, s in dynamic or inputs]
+        self.dvalues = d.values if d is not None else []
+        self.scale = [0.0] * len(self.inputs)
+        self.start: list = []
+
+    def observe(self) -> None:
+        """Take the polynomials handed over at the current point (after resolve)."""
+        slots, dv, scale = self.slots, self.dvalues, self.scale
+        start = []
+        for i, (s, ds) in enumerate(self.inputs):
+            v = slots[s]
+            if abs(v) > scale[i]:
+                scale[i] = abs(v)
+            start.append((v, [dv[j] for j in ds]))
+        self.start = start
+
+    def measure(self, h: float) -> float:
+        """max |u(t + h) - P(h)| / max |u| after a step of h (after resolve at t + h)."""
+        slots, scale = self.slots, self.scale
+        worst = 0.0
+        for i, ((s, _), (v, ders)) in enumerate(zip(self.inputs, self.start)):
+            p, term = v, 1.0
+            for j, dj in enumerate(ders, start=1):
+                term *= h / j
+                p += dj * term
+            new = slots[s]
+            sc = max(scale[i], abs(new))
+            if sc > 0:
+                worst = max(worst, abs(new - p) / sc)
+        return worst
+
+
+def check_rollback(stepper, t0: float, h: float) -> None:
+    """Step, restore the state, step again: both must give the same values, or an FMU does not
+    really restore its state (e.g. an integrator state kept outside its registered variables)."""
+    slaves = [inst.slave for inst in stepper.order]
+    states = [s.getFMUstate() for s in slaves]
+    rows = []
+    for _ in range(2):
+        stepper.t = t0
+        stepper.resolve()
+        stepper.step(t0, h)
+        stepper.t = t0 + h
+        stepper.resolve()
+        rows.append(stepper.row())
+        for s, st in zip(slaves, states):
+            s.setFMUstate(st)
+    for s, st in zip(slaves, states):
+        s.freeFMUstate(st)
+    stepper.t = t0
+    stepper.n_steps -= 2
+    if rows[0] != rows[1]:
+        bad = [c for c, a, b in zip(stepper.plan.columns, *rows) if a != b]
+        raise ScenarioError(f"error-controlled steps need FMU-state rollback, but repeating a restored step "
+                            f"changes {', '.join(bad[:4])}: an FMU does not restore its full state")
+
+
+class _Rejected(Exception):
+    """A step of the main copy made too large a defect."""
+
+
+def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: float, h_max: float,
+        coupling_order: int, progress: Callable[[float], None] | None = None,
+        level: float | None = None) -> StepReport:
+    """Error-controlled run of the copies `main` (recorded into `result`) and `shadow` (master's
+    steppers over the same scenario, initialized at t0). h0: first step; h_max: largest step.
+    level: the defect level to start from (default: the aim). When the run's largest estimate
+    misses the aim by far (below LOW or above HIGH times the tolerance, and the steps were not held
+    by h_max), the report's next_level is the level a second run should keep: aim / C with the
+    calibration C of this whole run (tolerance proportionality: the error scales with the level)."""
+    p = coupling_order + 1
+    report = StepReport(tolerance, coupling_order)
+    aim = AIM * tolerance
+    eps = aim if level is None else level
+    capped = macro = 0
+    calibration = 0.0
+    spent = 0.0                                          # integral of the level eps over the run
+    near = far_sum = 0.0                                 # integrals of the two copies' defects
+    slaves = [inst.slave for inst in main.order + shadow.order]
+    defect, far_defect = _Defect(main), _Defect(shadow)
+    h = min(h0, h_max)
+    h_stable = math.inf
+    t = t0
+    try:
+        for copy in (main, shadow):
+            copy.t = t0
+            copy.resolve()
+        row = main.row()
+        result.append(t0, row)
+        scale = [abs(v) for v in row]
+        while t < t_stop:
+            H = min(SUBSTEPS * h, t_stop - t)
+            last = t_stop - (t + H) <= 0.1 * H
+            if last:
+                H = t_stop - t
+            states = [s.getFMUstate() for s in slaves]
+            rows, worst, tt = [], 0.0, t
+            try:
+                for j in range(SUBSTEPS):
+                    t_next = t_stop if last and j == SUBSTEPS - 1 else t + (j + 1) * H / SUBSTEPS
+                    defect.observe()
+                    main.step(tt, t_next - tt)
+                    main.t = t_next
+                    main.resolve()
+                    worst = max(worst, defect.measure(t_next - tt))
+                    rows.append((t_next, main.row()))
+                    tt = t_next
+                if worst > REJECT * eps:
+                    raise _Rejected(SAFETY * (eps / worst) ** (1.0 / p))
+                far_defect.observe()
+                shadow.step(t, tt - t)
+                shadow.t = tt
+                shadow.resolve()
+                far_worst = far_defect.measure(tt - t)
+                if far_worst > SUBSTEPS ** p * REJECT * eps:
+                    raise _Rejected(0.5)             # the long step left the asymptotic range (unstable?)
+                if worst > 0.1 * eps and far_worst < 0.5 * SUBSTEPS ** p * worst:
+                    raise _Rejected(0.5)             # h and 2h make alike defects: not asymptotic either
+            except (_Rejected, SimulationError) as why:
+                # a defect too large, or an FMU that failed on the long step: roll back, shorter
+                if isinstance(why, SimulationError) and H <= 1e-9 * max(1.0, abs(t)):
+                    raise
+                for s, st in zip(slaves, states):
+                    s.setFMUstate(st)
+                    s.freeFMUstate(st)
+                for copy in (main, shadow):
+                    copy.t = t
+                    copy.resolve()
+                report.rejected += 1
+                factor = why.args[0] if isinstance(why, _Rejected) else SHRINK
+                h = H / SUBSTEPS * max(SHRINK, min(factor, 0.5))
+                if not isinstance(why, _Rejected) or factor == 0.5:
+                    h_stable = h                         # a bound learnt from the failure, raised slowly
+                continue
+            for s, st in zip(slaves, states):
+                s.freeFMUstate(st)
+            far = shadow.row()
+            estimate = 0.0
+            for i, (a, b) in enumerate(zip(rows[-1][1], far)):
+                for _, r in rows:
+                    if abs(r[i]) > scale[i]:
+                        scale[i] = abs(r[i])
+                if scale[i] > 0:
+                    estimate = max(estimate, abs(a - b) / scale[i])
+            near += worst * (tt - t)
+            far_sum += far_worst * (tt - t)
+            richardson = max(SUBSTEPS ** p, far_sum / near if near > 0 else 0.0) - 1
+            estimate /= richardson
+            for tr, r in rows:
+                result.append(tr, r)
+            report.accepted += SUBSTEPS
+            report.h_min = min(report.h_min, H / SUBSTEPS)
+            report.h_max = max(report.h_max, H / SUBSTEPS)
+            report.estimated_error = max(report.estimated_error, estimate)
+            spent += eps * (tt - t)
+            calibration = max(calibration, estimate * (tt - t0) / spent)
+            if calibration > 0:
+                eps = max(min(eps, aim / calibration), aim * LEVEL_FLOOR)
+            t = tt
+            factor = SAFETY * (eps / worst) ** (1.0 / p) if worst > 0 else GROW
+            h_stable *= STABLE_GROWTH
+            wanted = H / SUBSTEPS * min(GROW, max(SHRINK, factor))
+            h = min(h_max, h_stable, wanted)
+            macro += 1
+            capped += h < wanted
+            if progress is not None:
+                progress((t - t0) / (t_stop - t0))
+    except SimulationError as exc:
+        exc.result = result
+        raise
+    report.level = eps
+    report.held = capped / macro if macro else 0.0
+    E = report.estimated_error
+    if level is None and calibration > 0 and (E > HIGH * tolerance or (E < LOW * tolerance and report.held < 0.9)):
+        report.next_level = aim / calibration
+    if progress is not None:
+        progress(1.0)
+    return report

@@ -250,6 +250,9 @@ def cmd_run(args) -> int:
     _positive(args.step_size, "--step-size")
     _positive(args.tolerance, "--tolerance")
     _positive(args.max_step, "--max-step")
+    if args.max_step is not None and args.tolerance is None:
+        raise ScenarioError("--max-step bounds the steps that --tolerance chooses; without --tolerance the "
+                            "steps are fixed: use --step-size")
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:

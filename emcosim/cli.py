@@ -166,7 +166,10 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--tls-key", help="with --scheduler: this client's private key (PEM)")
     sw.add_argument("--out", help="output folder (default: sweep_SCENARIO_NAME)")
     sw.add_argument("--stop-time", type=float, help="stop time [s] of every run (default: the scenario's)")
-    sw.add_argument("--step-size", type=float, help="communication step [s] (default: the scenario's)")
+    sw.add_argument("--step-size", type=float, help="communication step [s] (default: the scenario's, chosen for "
+                                                    "its own gains: other gains may need a smaller one, or --tolerance)")
+    sw.add_argument("--tolerance", type=float, metavar="TOL",
+                    help="error-controlled communication steps in every run, as `run --tolerance` (relative error)")
     sw.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     sw.add_argument("--no-plots", action="store_true", help="write the table only")
     sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
@@ -397,6 +400,8 @@ def cmd_sweep(args) -> int:
 
     grid = [parse_grid(g) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
+    _positive(args.step_size, "--step-size")
+    _positive(args.tolerance, "--tolerance")
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
     scenario = _read(args.scenario, args.fmu_dir, args)
@@ -410,7 +415,8 @@ def cmd_sweep(args) -> int:
         try:
             rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
                                step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
-                               stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream)
+                               stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream,
+                               tolerance=args.tolerance)
         finally:
             stream.close()
         files = write_table(rows, folder.path, info)
@@ -432,6 +438,11 @@ def cmd_sweep(args) -> int:
     folder.commit()
     print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {info['workers']} worker{'s' if info['workers'] != 1 else ''}, "
           f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
+    if info["failed"] and args.step_size is None and args.tolerance is None:
+        step = f" ({scenario.step_size:g} s)" if scenario.step_size else ""
+        print(f"emcosim: note: the runs used the scenario's step{step}, chosen for its own gains; "
+              "failed runs may need --step-size or --tolerance (the status column says why each failed)",
+              file=sys.stderr)
     return 0
 
 

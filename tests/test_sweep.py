@@ -213,3 +213,32 @@ def test_line_plot_marks_not_settled_and_ticks_the_grid(tmp_path):
     assert shown["x"] == {"name": "controller.D_d", "unit": "C/m", "values": [-1.0, -0.5, 0.0]}
     panel = shown["panels"]["settling_time_2pct"]
     assert panel["mean"] == [0.8e-3, 1.2e-3, None] and panel["not_settled_at"] == [0.0] and panel["failed_at"] == []
+
+
+def test_tolerance_lets_a_sweep_leave_the_scenarios_gains(local_table, fmu_dir):
+    """The scenario's default step (chosen for D_d = 0) does not bear D_d = -1: that run is a row with its
+    error. With `tolerance` the same point runs and its metrics agree with the fixed 4 us run of the
+    sweep above."""
+    from emcosim.paper.sweep import run_point
+
+    ssd = str(ROOT / "scenarios" / SCENARIO / "SystemStructure.ssd")
+    values = {"controller.D_d": -1.0}
+    at_default_step = run_point(ssd, str(fmu_dir), values, stop_time=float(STOP))
+    assert at_default_step["status"] != "ok"
+    controlled = run_point(ssd, str(fmu_dir), values, stop_time=float(STOP), tolerance=1e-4)
+    assert controlled["status"] == "ok", controlled["status"]
+    fixed = next(r for r in local_table if r["controller.D_d"] == -1.0)
+    assert controlled["ise"] == pytest.approx(fixed["ise"], rel=1e-2)
+    assert controlled["max_abs_u"] == pytest.approx(fixed["max_abs_u"], rel=1e-2)
+
+
+def test_failed_runs_at_the_default_step_get_a_note(fmu_dir, tmp_path, capsys):
+    code = cli.main(["sweep", SCENARIO, "--stop-time", STOP, "--grid", "controller.D_d=-1,0", "--fmu-dir", str(fmu_dir),
+                     "--out", str(tmp_path / "s"), "--no-progress", "--no-plots", "--workers", "1"])
+    assert code == 0
+    captured = capsys.readouterr()
+    assert "2 runs (1 failed)" in captured.out
+    err = captured.err
+    rows = read_table(tmp_path / "s" / "sweep.csv")
+    assert [r["status"] == "ok" for r in rows] == [False, True]
+    assert "failed runs may need --step-size or --tolerance" in err, err

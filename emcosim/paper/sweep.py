@@ -179,13 +179,16 @@ def metrics_of(scenario: Scenario, values: dict[str, float], result) -> dict[str
 
 
 def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], stop_time: float | None = None,
-              step_size: float | None = None) -> dict:
+              step_size: float | None = None, tolerance: float | None = None) -> dict:
     """Run the scenario once with `values` and return its table row: the values, the metrics and
-    'status' ('ok' or the one-line error). Never raises for a failing run."""
+    'status' ('ok' or the one-line error). Never raises for a failing run. `tolerance`: error-controlled
+    communication steps (as `emcosim run --tolerance`) instead of the fixed step, which the scenario
+    chose for its own gains and which other gains may not bear."""
     row: dict = dict(values)
     try:
         scenario, session = _session(ssd, fmu_dir)
-        result = session.run({k: float(v) for k, v in values.items()}, stop_time=stop_time, step_size=step_size)
+        result = session.run({k: float(v) for k, v in values.items()}, stop_time=stop_time, step_size=step_size,
+                             tolerance=tolerance)
         row.update(metrics_of(scenario, values, result))
         row["status"] = "ok"
     except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash
@@ -269,7 +272,7 @@ def _sigint_ignored() -> Iterator[None]:
 
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             stop_time: float | None = None, step_size: float | None = None,
-            stream: TextIO | None = sys.stderr, on_row=None) -> list[dict]:
+            stream: TextIO | None = sys.stderr, on_row=None, tolerance: float | None = None) -> list[dict]:
     """Submit every run to the cluster and return the rows in the order of `runs`; a progress bar
     of the runs done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is
     called as each run finishes."""
@@ -277,7 +280,7 @@ def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
 
     from ..progress import Counter
 
-    futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, pure=False)
+    futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, tolerance, pure=False)
                for values in runs]
     index = {f.key: i for i, f in enumerate(futures)}
     rows: list[dict | None] = [None] * len(runs)
@@ -305,7 +308,7 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
           samples: list[tuple[str, float, float]] = (), n_samples: int = 0, seed: int = 0,
           stop_time: float | None = None, step_size: float | None = None, workers: int | None = None,
           scheduler: str | None = None, stream: TextIO | None = sys.stderr, security=None,
-          on_row=None) -> tuple[list[dict], dict]:
+          on_row=None, tolerance: float | None = None) -> tuple[list[dict], dict]:
     """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
     the wall time and the throughput. `on_row(i, row)`: see `run_all`."""
     runs = points(grid, samples, n_samples, seed)
@@ -317,7 +320,8 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
     with dask_client(workers, scheduler, security) as client:
         started = time.perf_counter()
         try:
-            rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row)
+            rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row,
+                           tolerance)
             end = time.perf_counter()
             n_workers = len(client.nthreads())
         finally:
@@ -327,7 +331,7 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
             "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",
             "wall_time_s": closed - tic, "run_time_s": end - started,
             "runs_per_s": len(rows) / (end - started) if end > started else float("nan"),
-            "stop_time": stop_time, "step_size": step_size, "seed": seed,
+            "stop_time": stop_time, "step_size": step_size, "tolerance": tolerance, "seed": seed,
             "grid": {n: v for n, v in grid}, "samples": {n: [lo, hi] for n, lo, hi in samples},
             "n_samples": n_samples, "units": units}
     return rows, info

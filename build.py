@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib
+import importlib.metadata
 import itertools
 import json
 import os
@@ -148,16 +149,13 @@ def _sources(models: dict[str, Path]) -> list[Path]:
 def fingerprint(models: dict[str, Path] | None = None) -> str:
     """sha256 over every input of the build: sources, pythonfmu (code and library), the FMI headers, the
     compiler, and the Python the FMUs record."""
-    import pythonfmu
-
     models = _models() if models is None else models
     try:
         record, compiler = python_record(), _compiler_version(_compiler()[0])
     except BuildError as exc:                       # reported by build(); the fingerprint just differs
         record, compiler = {"missing": str(exc)}, ""
     digest = hashlib.sha256(json.dumps([record, compiler, sorted((k, v.name) for k, v in models.items())]).encode())
-    pythonfmu_dir = Path(pythonfmu.__file__).parent
-    inputs = (_sources(models) + sorted(pythonfmu_dir.glob("*.py")) + [_pythonfmu_library()]
+    inputs = (_sources(models) + sorted(_pythonfmu_dir().glob("*.py")) + [_pythonfmu_library()]
               + sorted(_fmi_headers().glob("fmi2*.h")))
     for f in inputs:
         digest.update(f.name.encode() + b"\0" + f.read_bytes())
@@ -168,9 +166,16 @@ def _models() -> dict[str, Path]:
     return {identifier: FMU_SOURCES / f"{module}.py" for identifier, module in FMUS.items()}
 
 
+def _pythonfmu_dir() -> Path:
+    """The installed pythonfmu package. Not `pythonfmu.__file__`: a pythonfmu FMU of another project run in
+    this process before its first `import pythonfmu` puts its own copy (in the FMU's unzip folder, deleted
+    after the run) into sys.modules; the build then read files that were gone (seen in the test suite when
+    tests running foreign toy FMUs came before the build fixture)."""
+    return Path(importlib.metadata.distribution("pythonfmu").locate_file("pythonfmu"))
+
+
 def _pythonfmu_library() -> Path:
-    import pythonfmu
-    return Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64" / PYTHONFMU_LIBRARY
+    return _pythonfmu_dir() / "resources" / "binaries" / "linux64" / PYTHONFMU_LIBRARY
 
 
 def package_name(build_fingerprint: str) -> str:
@@ -181,8 +186,6 @@ def package_name(build_fingerprint: str) -> str:
 # ---- the FMU ----------------------------------------------------------------------------------------
 def _bundle(work: Path, package: str, build_fingerprint: str, models: dict[str, Path]) -> Path:
     """work/resources/<package>: fmus/*.py, the model modules, components/ and pythonfmu's Python package."""
-    import pythonfmu
-
     resources = work / "resources"
     target = resources / package
     target.mkdir(parents=True)
@@ -193,7 +196,7 @@ def _bundle(work: Path, package: str, build_fingerprint: str, models: dict[str, 
         shutil.copy2(source, target / source.name)
     shutil.copytree(COMPONENTS, target / "components", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     (target / "pythonfmu").mkdir()
-    for source in sorted(Path(pythonfmu.__file__).parent.glob("*.py")):
+    for source in sorted(_pythonfmu_dir().glob("*.py")):
         if source.name not in PYTHONFMU_SKIPPED:
             shutil.copy2(source, target / "pythonfmu" / source.name)
     return resources
@@ -238,8 +241,6 @@ def _model_description(alias: str, module: str, identifier: str, resources: Path
     cosim = root.find("CoSimulation")
     if cosim.get("modelIdentifier") != identifier:
         raise ValueError(f"{module}.{identifier} declares model identifier {cosim.get('modelIdentifier')}")
-    for name, value in OPTIONS.items():
-        cosim.set(name, str(value).lower())
     return root.get("guid"), parseString(tostring(root, "UTF-8")).toprettyxml(encoding="UTF-8")
 
 

@@ -87,9 +87,6 @@ class Maglev(OneDOFPlant):
     def d2psi(self, q):
         return 0.0 * q
 
-    def domain_margin(self, eta):
-        return float(self.q_max - eta[0].real)
-
     def check_state(self, eta):
         super().check_state(eta)
         if not np.real(eta[0]) < self.q_max:

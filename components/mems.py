@@ -64,9 +64,6 @@ class MEMS(OneDOFPlant):
     def d2psi(self, q):
         return 2.0 / (self.c1 * (q + self.c0) ** 3)
 
-    def domain_margin(self, eta):
-        return float(eta[0].real - self.q_min)
-
     def check_state(self, eta):
         super().check_state(eta)
         if not np.real(eta[0]) > self.q_min:

@@ -235,6 +235,11 @@ class OneDOFPlant(EMPlant):
     q_max: float = math.inf
     """The model's admissible positions q_min < q < q_max (a subclass sets them from its parameters)."""
 
+    def domain_margin(self, eta) -> float:
+        """Distance of q to the nearer end of q_min < q < q_max (positive inside)."""
+        q = eta[0].real
+        return float(min(q - self.q_min, self.q_max - q))
+
     # ---- the model in scalars (a concrete plant implements these) --------------------------------
     def V_s(self, q):
         """Potential energy V(q) [J]."""

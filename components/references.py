@@ -28,7 +28,7 @@ class Reference:
 
     def values(self, t: float) -> tuple[float, float, float, float]:
         """(q*, q*', q*'', q*''') at time t, as numbers."""
-        raise NotImplementedError
+        return self.derivatives(t, 3)          # a subclass may write it out (the monolithic loop calls it often)
 
     def jet(self, t: float) -> Jet:
         """The jet at time t as arrays of shape (1,)."""
@@ -99,15 +99,6 @@ class SmoothStep(Reference):
         Parameter("t_start", 0.0, "s", "start of the transition", ">= 0"),
         Parameter("duration", 1e-3, "s", "duration of the transition"),
     ]}
-
-    def values(self, t: float) -> tuple[float, float, float, float]:
-        tau = min(max((t - self.t_start) / self.duration, 0.0), 1.0)
-        s = 35 * tau**4 - 84 * tau**5 + 70 * tau**6 - 20 * tau**7
-        s1 = 140 * tau**3 - 420 * tau**4 + 420 * tau**5 - 140 * tau**6
-        s2 = 420 * tau**2 - 1680 * tau**3 + 2100 * tau**4 - 840 * tau**5
-        s3 = 840 * tau - 5040 * tau**2 + 8400 * tau**3 - 4200 * tau**4
-        d, T = self.q_to - self.q_from, self.duration
-        return self.q_from + d * s, d * s1 / T, d * s2 / T**2, d * s3 / T**3
 
     S = {4: 35.0, 5: -84.0, 6: 70.0, 7: -20.0}                 # s(tau) = sum_n S[n] tau^n
 

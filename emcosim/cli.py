@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import difflib
-import math
 import re
 import sys
 from pathlib import Path
@@ -369,13 +368,12 @@ def cmd_reproduce(args) -> int:
 
 def _radius(text: str) -> float:
     """--radius: a finite number > 0 (argparse reports the error and exits with status 2)."""
+    from components.certificates import check_radius
+
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0 (relative half-width of the neighbourhood)")
-    return value
+        return check_radius(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def cmd_certify(args) -> int:

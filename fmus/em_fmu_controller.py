@@ -55,7 +55,6 @@ class ControllerSlave(EMSlave):
         self.input_names = [i[0] for i in inputs]
         self.output("u", module.INPUT[1], module.INPUT[2], self.u_value, self.input_names,
                     self.input_names + list(module.PARAMETERS) + list(self.gains))
-        self._u_vrs = [len(self.variables) - 1]                 # [value reference of u]
         self.controller: Controller | None = None
         self._u: float | None = None
         self._u_error = ""
@@ -95,11 +94,6 @@ class ControllerSlave(EMSlave):
     # ---- the output -----------------------------------------------------------------------------
     def inputs_changed(self) -> None:
         self._u = None
-
-    def get_real(self, vrs):
-        if vrs == self._u_vrs:                                  # the call of every communication step
-            return [self.u_value()]
-        return super().get_real(vrs)
 
     def u_value(self) -> float:
         if self._u is None:

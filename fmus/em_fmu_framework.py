@@ -191,9 +191,7 @@ class EMSlave(Fmi2Slave):
         self.variables: list[Variable] = []
         self.by_name: dict[str, Variable] = {}
         self._getters: list[Callable[[], float] | None] = []
-        self._setters: list[Callable[[float], None] | None] = []
-        self._real_vrs: set[int] = set()                            # value references by type
-        self._integer_vrs: set[int] = set()
+        self._real_vrs: set[int] = set()                            # value references of Real variables
         self._real_inputs: dict[int, str] = {}                      # value reference -> name
         self.initialized = False
         self.entered = False                                        # in initialization mode
@@ -229,11 +227,10 @@ class EMSlave(Fmi2Slave):
         self.by_name[var.name] = var
         name = var.name
         if var.causality == "output":
-            getter, setter = var.getter, None
+            getter = var.getter
         else:
             self.values[name] = var.start
             getter = (lambda: self.values[name])
-            setter = self._make_setter(var)
         kind = Integer if var.integer else Real
         causality = {"parameter": Fmi2Causality.parameter, "input": Fmi2Causality.input,
                      "output": Fmi2Causality.output}[var.causality]
@@ -241,32 +238,15 @@ class EMSlave(Fmi2Slave):
                        "output": Fmi2Variability.continuous}[var.causality]
         if var.integer and var.causality != "parameter":
             raise ValueError("only parameters may be Integer")
+        # values are set by fmi2_set_real / fmi2_set_integer (every FMI path leads there), never through
+        # pythonfmu's per-variable setters
         self.register_variable(kind(name, causality=causality, variability=variability,
-                                    description=var.description, getter=getter, setter=setter))
+                                    description=var.description, getter=getter))
         if var.causality == "input":
             self._real_inputs[len(self._getters)] = name
+        if not var.integer:
+            self._real_vrs.add(len(self._getters))
         self._getters.append(getter)
-        self._setters.append(setter)
-        (self._integer_vrs if var.integer else self._real_vrs).add(len(self._getters) - 1)
-
-    def _make_setter(self, var: Variable) -> Callable[[float], None]:
-        name, is_input, integer = var.name, var.causality == "input", var.integer
-
-        if is_input:
-            values, changed = self.values, self.inputs_changed
-
-            def set_input(value):
-                values[name] = float(value)
-                changed()
-            return set_input
-
-        def setter(value):
-            if self.initialized:
-                self.log(f"{self.model_identifier}: parameter {name} is fixed after initialization; "
-                         f"the value {value!r} is ignored", Fmi2Status.warning)
-                return
-            self.values[name] = int(value) if integer else float(value)
-        return setter
 
     def inputs_changed(self) -> None:
         """Hook: an input was set (controllers drop their cached output)."""
@@ -593,8 +573,8 @@ class EMSlave(Fmi2Slave):
         self.initialized = state["initialized"]
         self.input_derivatives = {name: {int(order): float(value) for order, value in orders.items()}
                                   for name, orders in state["input_derivatives"].items()}
+        self.inputs_changed()                      # drop what depended on the inputs, then restore the state
         self.restore_internal(state["internal"])
-        self.inputs_changed()
 
     def _get_fmu_state(self):
         answer = self.fmi2_get_fmu_state()

@@ -56,7 +56,6 @@ class PlantSlave(EMSlave):
         self.eta: tuple[float, float, float] | None = None
         self._H: float | None = None
         self.u_end: tuple[float, float] | None = None          # (u, u') at the end of the last step
-        self._keep_u_end = False
         self._rates: tuple | None = None                        # (key, time derivatives) of the last request
 
     # ---- outputs ------------------------------------------------------------------------------
@@ -112,7 +111,6 @@ class PlantSlave(EMSlave):
             self.eta = tuple(internal["eta"])
             self.stepper.h_next = internal["h_next"]
             self.u_end = None if internal["u_end"] is None else tuple(internal["u_end"])
-            self._keep_u_end = True          # _set_fmu_state calls inputs_changed right after this: not a set of u
         self._H = None
 
     # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
@@ -123,10 +121,7 @@ class PlantSlave(EMSlave):
 
     def inputs_changed(self) -> None:
         """The master set u: from now on it (and the rate it sets) is the input at the current time."""
-        if self._keep_u_end:
-            self._keep_u_end = False
-        else:
-            self.u_end = None
+        self.u_end = None
 
     def output_derivative(self, name: str, order: int) -> float:
         """d^order/dt^order of q, p, x_e or H at the current communication point: eta' = f(eta, u),

@@ -102,6 +102,7 @@ extern int __cxa_atexit(void (*function)(void *), void *argument, void *dso_hand
 /* ---- state of this library (one per FMU: every FMU ships its own copy) ------------------------------ */
 static pthread_mutex_t setup_lock = PTHREAD_MUTEX_INITIALIZER;
 static int setup_done;                       /* Python and pythonfmu's library are ready */
+static int python_started;                   /* ... and this loader started that Python (no host Python) */
 static char setup_error[MESSAGE_SIZE];       /* or why not (then every fmi2Instantiate reports it) */
 
 typedef struct {                             /* the value references of the last call, as a Python list */
@@ -541,14 +542,13 @@ static int load_pythonfmu(char *error)
 static int set_up(const Record *record, const char *resources, char *error)
 {
     pthread_mutex_lock(&setup_lock);
-    int started = 0;
     if (!setup_done && !setup_error[0]) {
         int (*is_initialized)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
         if (is_initialized != NULL && is_initialized()) {                 /* the host's Python (fmpy, ...) */
             const char *missing = bind_python(RTLD_DEFAULT);
             if (missing) snprintf(setup_error, sizeof setup_error, "the host's Python lacks %s", missing);
         } else if (start_python(record, setup_error) == 0) {
-            started = 1;
+            python_started = 1;
         }
         if (!setup_error[0]) load_pythonfmu(setup_error);
         setup_done = !setup_error[0];
@@ -558,7 +558,7 @@ static int set_up(const Record *record, const char *resources, char *error)
         copy_string(error, MESSAGE_SIZE, setup_error);
         return -1;
     }
-    return check_environment(record, resources, started, error);
+    return check_environment(record, resources, python_started, error);
 }
 
 /* ---- the registry of live instances (per FMU binary) -------------------------------------------------- */

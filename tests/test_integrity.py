@@ -143,18 +143,22 @@ def test_streamed_result_keeps_only_the_last_row(loop, tmp_path):
     assert sink.rows == 101 and sink.final == out and not list(tmp_path.glob("*incomplete*"))
 
 
-def test_file_of_a_killed_run_is_marked_partial(tmp_path):
+@pytest.mark.parametrize("folder", ["", "old.incomplete-1 [x]"])
+def test_file_of_a_killed_run_is_marked_partial(tmp_path, folder):
     """NAME.incomplete-PID.csv whose lock is free (its process died) gets the partial comment; a torn
-    last line (a write cut by kill -9) is left out."""
+    last line (a write cut by kill -9) is left out. Also in a folder whose name holds "incomplete-" and
+    glob's special characters."""
     from emcosim.engine.results import mark_orphans
 
-    orphan = tmp_path / "r.incomplete-999999.csv"
+    where = tmp_path / folder
+    where.mkdir(exist_ok=True)
+    orphan = where / "r.incomplete-999999.csv"
     orphan.write_text("time,a\n0.0,1.0\n0.5,2.0\n1.0,3")
-    notes = mark_orphans(tmp_path / "r.csv")
+    notes = mark_orphans(where / "r.csv")
     assert len(notes) == 1 and "999999" in notes[0]
     assert "ended without a clean exit" in partial_note(orphan) and "2 rows up to t = 0.5 s" in partial_note(orphan)
     assert read_csv(orphan)["a"].tolist() == [1.0, 2.0]
-    assert mark_orphans(tmp_path / "r.csv") == []                        # marked once
+    assert mark_orphans(where / "r.csv") == []                           # marked once
 
 
 # ---- 2. reproduce: a fresh folder, swapped in on success -------------------------------------------

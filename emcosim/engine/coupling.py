@@ -400,8 +400,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
     # the inputs that take exact derivatives and whose value the master holds in its buffer (_Guard),
     # of FMUs that integrate them (an output not fed through from an input, i.e. a state): a
     # feedthrough FMU uses its input derivatives for its output derivatives, which must stay exact
-    dynamic = {name for name, inst in instances.items()
-               if any(not ins for ins in dependencies.feedthrough(inst.model_description).values())}
+    dynamic = {name for name, inst in instances.items() if dependencies.has_state(inst.model_description)}
     guarded_inputs = [c.end for c in connections if orders[c.end] > 0 and c.end in (value_slot or {})
                       and c.end_element in dynamic]
     guarded = {name: i for i, name in enumerate(guarded_inputs)}

@@ -22,6 +22,12 @@ def feedthrough(model_description) -> dict[str, set[str]]:
     return deps
 
 
+def has_state(model_description) -> bool:
+    """True if some output does not depend on any input: the FMU integrates (a plant), it is not a
+    static map of its inputs (a controller with direct feedthrough only)."""
+    return any(not inputs for inputs in feedthrough(model_description).values())
+
+
 def levels(connections: list[tuple[str, str]], depends: dict[str, set[str]]) -> dict[str, int]:
     """Level of every connected output.
 

@@ -360,8 +360,10 @@ class Simulation:
             stepper.t = t0
             stepper.resolve(with_derivatives=False)
             failure = stepper.derivatives_resolve()
-            if failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
-                    max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate:
+            # a target that refuses an input derivative order k > 1 (and can be restored) is retried at k - 1
+            retry = failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
+                max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate
+            if retry:
                 for s, st in zip(slaves, states):
                     s.setFMUstate(st)
             for s, st in zip(slaves, states):
@@ -369,10 +371,9 @@ class Simulation:
             if failure is None:
                 break
             transfer, exc = failure
-            k = max(transfer.order)
-            if transfer.function != "fmi2SetRealInputDerivatives" or k <= 1 or \
-                    not transfer.inst.model_description.coSimulation.canGetAndSetFMUstate:
+            if not retry:
                 stepper._failed(transfer, exc)
+            k = max(transfer.order)
             self._accepted[transfer.inst.name] = k - 1
             messages = transfer.inst.messages
             while messages and not messages[-1].startswith("[ok]"):
@@ -721,8 +722,7 @@ def _plan(scenario: Scenario, instances: dict[str, Instance], connections, recor
     fetched = set(level) | {c.end for c in connections}
     extra = [f for f in columns if f not in fetched]
     record_gets = _batches(instances, extra, slot_of, getter=True)
-    dynamic = {name for name, inst in instances.items()
-               if any(not ins for ins in dependencies.feedthrough(inst.model_description).values())}
+    dynamic = {name for name, inst in instances.items() if dependencies.has_state(inst.model_description)}
     return Plan(stages, record_gets, columns, [slot_of(f) for f in columns], level, depends,
                 [(c.end, slot_of(c.end)) for c in connections], dynamic, slot)
 

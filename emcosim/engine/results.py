@@ -334,8 +334,10 @@ def mark_orphans(path: Path) -> list[str]:
     """Mark the files of killed runs that wrote to `path` (NAME.incomplete-PID.csv whose lock is
     free: the kernel releases a killed process's locks) with a partial comment; returns a note per file."""
     notes = []
-    pattern = glob.escape(str(_sibling(path, "incomplete-"))).replace("incomplete-", "incomplete-*", 1)
-    for name in sorted(glob.glob(pattern)):
+    marker = _sibling(path, "incomplete-").name                     # NAME.incomplete-.csv: the wildcard after the dash
+    head, tail = marker.split("incomplete-", 1)
+    pattern = glob.escape(head) + "incomplete-*" + glob.escape(tail)
+    for name in sorted(glob.glob(os.path.join(glob.escape(str(path.parent)), pattern))):
         try:
             fd = os.open(name, os.O_RDWR)
         except OSError:

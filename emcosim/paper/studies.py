@@ -49,9 +49,8 @@ def study_point(ctrl, ref: Constant, offset: np.ndarray, horizon: float, radius:
     eta_d = ctrl.target(ref.jet(0.0))
     r = simulate(ctrl, eta_d + offset, horizon, ref, rtol=1e-10)
     scale = certificates.state_scale(ctrl, r.eta_star)
-    J = ctrl.F_d() @ ctrl.hess_H_d(eta_d, ref.jet(0.0))
     return StudyPoint(float(ctrl.D_d[0, 0]), cert.rate, measured_decay_rate(r.t, r.eta - r.eta_star, scale),
-                      float(-np.max(np.linalg.eigvals(J).real)))
+                      jacobian_rate(ctrl, ref))
 
 
 def design(plant: str, D: float):
@@ -65,9 +64,13 @@ def design(plant: str, D: float):
 
 
 def linearized_rate(plant: str, D: float) -> float:
+    """The linearized decay rate (jacobian_rate) of the study's loop for coupled damping D [1/s]."""
+    return jacobian_rate(*design(plant, D))
+
+
+def jacobian_rate(ctrl, ref: Constant) -> float:
     """-max Re eig of the closed-loop Jacobian F_d hess H_d at the set-point [1/s]: the decay rate of the
     linearized loop, and the best rate any constant metric can certify near the set-point."""
-    ctrl, ref = design(plant, D)
     jet = ref.jet(0.0)
     J = ctrl.F_d() @ ctrl.hess_H_d(ctrl.target(jet), jet)
     return float(-np.max(np.linalg.eigvals(J).real))
@@ -101,7 +104,7 @@ def coupled_damping_study(plant: str, D_values) -> list[StudyPoint]:
             offset, radius, longest = np.array([-3e-8, 0, 0]), 0.002, 0.1
         else:
             offset, radius, longest = np.array([-2.5e-5, 0, 0]), 0.02, 200.0
-        slow = linearized_rate(plant, D)
+        slow = jacobian_rate(ctrl, ref)
         if slow <= 0:                                   # locally unstable: no decay to measure
             points.append(StudyPoint(float(ctrl.D_d[0, 0]), None, float("nan"), float(slow)))
             continue

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..engine.errors import ScenarioError
 from ..engine.ssd import Scenario, finite_number, read_scenario, with_values
-from .sweep_output import METRICS, columns
+from .sweep_output import METRICS, columns, csv_cells
 
 
 # ---- the specification of a sweep ----------------------------------------------------------------
@@ -351,9 +351,7 @@ class RowStream:
         self.rows = 0
 
     def __call__(self, i: int, row: dict) -> None:
-        values = {"run": i, **row}
-        self.writer.writerow(["" if values.get(c) is None else
-                              (repr(values[c]) if isinstance(values[c], float) else values[c]) for c in self.columns])
+        self.writer.writerow(csv_cells({"run": i, **row}, self.columns))
         self.file.flush()
         self.rows += 1
 

@@ -40,16 +40,21 @@ def columns(rows: list[dict]) -> list[str]:
     return ["run", *params, *METRIC_LABELS, "status"]
 
 
+def csv_cells(row: dict, cols: list[str]) -> list:
+    """A table row as CSV cells: exact numbers (repr; inf = never settles in the band), "" for none."""
+    return ["" if row.get(c) is None else (repr(row[c]) if isinstance(row[c], float) else row[c]) for c in cols]
+
+
 def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
     """sweep.csv, sweep.md and sweep.json (rows + info) into `out`."""
     out.mkdir(parents=True, exist_ok=True)
     cols = columns(rows)
     table = [{"run": i, **{c: r.get(c) for c in cols[1:]}} for i, r in enumerate(rows)]
-    with open(out / "sweep.csv", "w", newline="") as f:      # exact numbers (repr); inf = never settles in the band
+    with open(out / "sweep.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(cols)
         for r in table:
-            w.writerow(["" if r[c] is None else (repr(r[c]) if isinstance(r[c], float) else r[c]) for c in cols])
+            w.writerow(csv_cells(r, cols))
     units = info.get("units", {})
     head = [f"{c} [{units[c]}]" if units.get(c) else
             (f"{c} [{METRIC_LABELS[c][1]}]" if c in METRIC_LABELS else c) for c in cols]

@@ -52,6 +52,7 @@ import numpy as np
 from .ph_plant import DomainError, EMPlant, OneDOFPlant
 
 DEFAULT_RTOL = 1e-8
+RTOL_RANGE = (1e-14, 1e-2)  # the relative tolerances PlantStepper accepts
 LAYER_MIN_DECAY = 1.0       # alpha h from which the layer is taken in closed form (below, RODAS4 resolves it)
 LAYER_SEPARATION = 100.0    # alpha T_m from which the layer counts as fast for the mechanics
 LAYER_TOL = 0.1             # the terms the layer neglects must stay below this fraction of the error tolerance
@@ -232,8 +233,8 @@ class PlantStepper:
     def __init__(self, plant: EMPlant, rtol: float = DEFAULT_RTOL, max_substeps: int = MAX_SUBSTEPS):
         if plant.n_m != 1 or plant.n_e != 1:
             raise NotImplementedError(f"{plant.name}: PlantStepper handles n_m = n_e = 1")
-        if not (math.isfinite(rtol) and 1e-14 <= rtol <= 1e-2):
-            raise ValueError(f"parameter rtol = {rtol} violates 1e-14 <= rtol <= 1e-2 "
+        if not (math.isfinite(rtol) and RTOL_RANGE[0] <= rtol <= RTOL_RANGE[1]):
+            raise ValueError(f"parameter rtol = {rtol} violates {RTOL_RANGE[0]:g} <= rtol <= {RTOL_RANGE[1]:g} "
                              "(relative tolerance of the plant integration)")
         self.plant = plant
         self.rtol = float(rtol)

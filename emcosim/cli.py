@@ -113,6 +113,12 @@ def _parser() -> argparse.ArgumentParser:
                           "value per s^k] so the input follows a polynomial of degree K. Default: as many as both "
                           "ends of a connection declare (maxOutputDerivativeOrder, canInterpolateInputs), plus one "
                           "estimated by backward difference where the target takes it")
+    run.add_argument("--coupling", choices=("explicit", "implicit"),
+                     help="explicit: the inputs follow polynomials from their sources' derivatives at the start "
+                          "of each step; implicit: each step is repeated (FMU-state rollback) until the inputs "
+                          "of the FMUs with states agree with their sources at its end, stable on stiff loops at "
+                          "any step (second order; the run prints the trial steps). Default: the scenario's "
+                          "(its emcosim:Coupling annotation; `emcosim info` shows it), else explicit")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
@@ -255,6 +261,10 @@ def cmd_run(args) -> int:
     if args.max_step is not None and args.tolerance is None:
         raise ScenarioError("--max-step bounds the steps that --tolerance chooses; without --tolerance the "
                             "steps are fixed: use --step-size")
+    if args.coupling == "implicit" and args.coupling_order not in (None, 0):
+        raise ScenarioError(f"--coupling-order {args.coupling_order} sets the derivatives of explicit coupling; "
+                            "--coupling implicit passes none (its inputs follow the chord of each step)")
+    implicit = None if args.coupling is None else args.coupling == "implicit"
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:
@@ -275,7 +285,7 @@ def cmd_run(args) -> int:
             result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
                               start_values=start_values, record=record, progress=bar, tolerance=args.tolerance,
                               coupling_order=args.coupling_order, max_step=args.max_step,
-                              sink=sink, max_steps=args.max_steps or MAX_STEPS)
+                              sink=sink, max_steps=args.max_steps or MAX_STEPS, implicit=implicit)
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
@@ -292,6 +302,8 @@ def cmd_run(args) -> int:
     print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {args.plot}" if args.plot else ""))
     if getattr(result, "step_control", None) is not None:
         print(f"{scenario.name}: {result.step_control.summary()}")
+    if getattr(result, "implicit", None) is not None:
+        print(f"{scenario.name}: {result.implicit.summary()}")
     return 0
 
 
@@ -336,7 +348,8 @@ def cmd_info(args) -> int:
     for s in scenarios:
         h = f"{s.step_size:g} s" if s.step_size else "?"
         stop = f"{s.stop_time:g} s" if s.stop_time is not None else "?"
-        print(f"  {s.name}: stop time {stop}, step {h}")
+        coupling = f", {s.coupling} coupling" if s.coupling else ""
+        print(f"  {s.name}: stop time {stop}, step {h}{coupling}")
         if s.description:
             print(f"      {s.description}")
         for c in s.components:

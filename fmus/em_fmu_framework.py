@@ -197,6 +197,7 @@ class EMSlave(Fmi2Slave):
         self.entered = False                                        # in initialization mode
         self.terminated = False
         self.time = 0.0
+        self.tolerance: float | None = None      # fmi2SetupExperiment's tolerance, if the master defined one
         self._set_names: tuple[list[int], list[str]] = ([], [])     # the last Real inputs set: vrs, names
         self.input_derivatives: dict[str, dict[int, float]] = {}     # input name -> {order: value}
         self.declare()
@@ -328,6 +329,7 @@ class EMSlave(Fmi2Slave):
         if tolerance_defined and not tolerance > 0:
             return ERROR, f"{where}: tolerance = {tolerance!r} is not > 0"
         self.time = float(start_time)
+        self.tolerance = float(tolerance) if tolerance_defined else None
         return _OK
 
     def fmi2_enter_initialization_mode(self) -> tuple[int, str]:

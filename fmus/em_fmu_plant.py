@@ -18,7 +18,7 @@ import numpy as np
 
 from .components import catalog
 from .components.ph_plant import DomainError, EMPlant
-from .components.plant_step import DEFAULT_RTOL, PlantStepper, StepFailure
+from .components.plant_step import DEFAULT_RTOL, RTOL_RANGE, PlantStepper, StepFailure
 from .em_fmu_framework import EMSlave
 
 STATE_NAMES = ("q", "p", "x_e")
@@ -42,7 +42,8 @@ class PlantSlave(EMSlave):
             self.parameter(f"{name}_0", start, unit, f"initial value of {name}: {description}")
         self.parameter("rtol", DEFAULT_RTOL, "1",
                        "relative tolerance of the integration inside doStep (absolute tolerance: rtol times "
-                       "the nominal state scale)")
+                       "the nominal state scale); a tolerance given in fmi2SetupExperiment is used instead "
+                       f"(within [{RTOL_RANGE[0]:g}, {RTOL_RANGE[1]:g}])")
         name, unit, description = module.INPUT
         self.input(name, self.input_start, unit, description)
         initial = [f"{n}_0" for n in STATE_NAMES]
@@ -77,13 +78,21 @@ class PlantSlave(EMSlave):
 
     def initialize(self) -> None:
         plant = self.make_plant()                                   # ValueError names parameter and condition
-        stepper = PlantStepper(plant, rtol=self.values["rtol"])
+        stepper = PlantStepper(plant, rtol=self.integration_tolerance())
         eta = self.initial()
         try:
             plant.check_state(np.array(eta))
         except DomainError as exc:
             raise ValueError(f"initial state (q_0, p_0, x_e_0) = {eta} is not admissible: {exc}") from None
         self.plant, self.stepper, self.eta, self._H, self.u_end = plant, stepper, eta, None, None
+
+    def integration_tolerance(self) -> float:
+        """The rtol of doStep's integration: FMI 2.0 suggests that a co-simulation slave with an error-
+        controlled integrator uses the tolerance the master gives in fmi2SetupExperiment (an error-
+        controlled master passes one matching its own); without one, the parameter rtol."""
+        if self.tolerance is None:
+            return self.values["rtol"]
+        return min(max(self.tolerance, RTOL_RANGE[0]), RTOL_RANGE[1])
 
     def step(self, t: float, h: float) -> bool:
         u = self.values["u"]

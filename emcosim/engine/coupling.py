@@ -100,7 +100,7 @@ def extrapolated_orders(instances: dict, connections, orders: dict[str, int], re
     return out
 
 
-class _DerivativeTransfer:
+class DerivativeTransfer:
     """fmi2GetRealOutputDerivatives / fmi2SetRealInputDerivatives of a batch of (variable, order)
     of one FMU, on preallocated arrays."""
 
@@ -145,7 +145,7 @@ class _DerivativeTransfer:
 class NonFiniteDerivative(Exception):
     """A NaN or infinity among the derivatives got from (or about to be set on) an FMU."""
 
-    def __init__(self, transfer: _DerivativeTransfer, name: str, order: int, value: float):
+    def __init__(self, transfer: DerivativeTransfer, name: str, order: int, value: float):
         super().__init__(name)
         self.transfer, self.name, self.order, self.value = transfer, name, order, value
 
@@ -177,7 +177,7 @@ class _Extrapolation:
 
     FADE, GAIN = 0.8, 1.0
 
-    def __init__(self, transfer: _DerivativeTransfer, below: list, inputs: list[str]):
+    def __init__(self, transfer: DerivativeTransfer, below: list, inputs: list[str]):
         self.transfer = transfer
         self.below = below                   # slot (derivative values) of order k, or None for k = 0
         self.value_slots: list[int] = []     # slot (master's value buffer) of each input, for k = 0
@@ -293,8 +293,8 @@ class _Guard:
 class DerivativePlan:
     """The derivative transfers of a communication point, and where their values are kept.
 
-    passes: per order k = 1..K, per level: (gets, sets); a get is a _DerivativeTransfer, a set is
-        (_DerivativeTransfer, [(source slot, factor)]).
+    passes: per order k = 1..K, per level: (gets, sets); a get is a DerivativeTransfer, a set is
+        (DerivativeTransfer, [(source slot, factor)]).
     extrapolations: the extrapolated top orders (_Extrapolation), set after the passes.
     slot: (full name, order) -> index into `values` (outputs and connected inputs).
     orders: input full name -> coupling order.
@@ -312,7 +312,7 @@ class DerivativePlan:
     def max_order(self) -> int:
         return max(self.orders.values(), default=0)
 
-    def transfers(self) -> list[_DerivativeTransfer]:
+    def transfers(self) -> list[DerivativeTransfer]:
         return ([t for levels in self.passes for gets, sets in levels for t in gets + [s for s, _ in sets]]
                 + [e.transfer for e in self.extrapolations])
 
@@ -418,7 +418,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
                 elif need[out] >= k:
                     by_comp.setdefault(comp, []).append((var, k))
             for comp, entries in by_comp.items():
-                t = _DerivativeTransfer(instances[comp], entries, getter=True)
+                t = DerivativeTransfer(instances[comp], entries, getter=True)
                 t.slots = [slot_of((f"{comp}.{v}", j)) for v, j in entries]
                 gets.append(t)
             sets = []
@@ -427,7 +427,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
                 if level[c.start] == lv and orders[c.end] >= k:
                     targets.setdefault(c.end_element, []).append(c)
             for comp, conns in targets.items():
-                t = _DerivativeTransfer(instances[comp], [(c.end_connector, k) for c in conns], getter=False)
+                t = DerivativeTransfer(instances[comp], [(c.end_connector, k) for c in conns], getter=False)
                 t.slots = [slot_of((c.end, k)) for c in conns]
                 sets.append((t, [(slot_of((c.start, k)), c.factor, guarded.get(c.end, -1), k) for c in conns]))
             levels.append((gets, sets))
@@ -438,7 +438,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
         if c.end in (extrapolated or {}):
             by_target.setdefault(c.end_element, []).append(c)
     for comp, conns in by_target.items():
-        t = _DerivativeTransfer(instances[comp], [(c.end_connector, extrapolated[c.end]) for c in conns], getter=False)
+        t = DerivativeTransfer(instances[comp], [(c.end_connector, extrapolated[c.end]) for c in conns], getter=False)
         t.slots = [slot_of((c.end, extrapolated[c.end])) for c in conns]
         below = [slot_of((c.end, extrapolated[c.end] - 1)) if extrapolated[c.end] > 1 else None for c in conns]
         e = _Extrapolation(t, below, [c.end for c in conns])

@@ -41,7 +41,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from fmpy import calloc, free
 
-from . import coupling, dependencies, stepcontrol, tempdirs, units
+from . import coupling, dependencies, implicit, stepcontrol, tempdirs, units
 from .errors import ScenarioError, SimulationError
 from .results import Result, ResultFile
 from .ssd import Scenario, extract_archive, parse_value
@@ -49,6 +49,7 @@ from .ssd import Scenario, extract_archive, parse_value
 C_TYPES = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 INT_MIN, INT_MAX = -2**31, 2**31 - 1     # fmi2Integer is a 32-bit int
+INTERNAL_TOLERANCE = 0.01               # error-controlled runs: the FMUs' integrators get this times the tolerance
 MAX_STEPS = 10**8                        # more communication steps must be confirmed (max_steps, --max-steps)
 
 
@@ -163,7 +164,7 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
              progress: Callable[[float], None] | None = None, tolerance: float | None = None,
              timing: dict | None = None, coupling_order: int | None = None,
              max_step: float | None = None, sink: ResultFile | None = None,
-             max_steps: float = MAX_STEPS) -> Result:
+             max_steps: float = MAX_STEPS, implicit: bool | None = None) -> Result:
     """Run `scenario` once and return the recorded values at every communication point.
 
     start_values: "component.variable" -> value (text or number), overriding the .ssv values.
@@ -176,6 +177,11 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
     coupling_order: derivatives passed on the connections (coupling.py): None (default) for as
         many as both ends of a connection declare (up to coupling.MAX_ORDER), 0 for a zero-order
         hold everywhere, k to use at most k.
+    implicit: iterate every communication step until the inputs of the FMUs with states agree with
+        their sources at its end (implicit.py: stable on stiff loops at any step, second order;
+        `result.implicit` gives the trial steps); takes no coupling_order (the inputs follow chords).
+        None (default): the scenario's choice (its emcosim:Coupling annotation), explicit if it makes
+        none or if a coupling_order is given.
     timing: if a dict is given, the master fills in the wall time of the run ('total', from
         initialization to the end), the part spent inside FMU calls ('fmu'), the number of
         communication steps ('steps') and FMUs ('fmus'), the time inside each FMU ('per_fmu',
@@ -193,7 +199,8 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
     with Simulation(scenario) as simulation:
         return simulation.run(stop_time=stop_time, step_size=step_size, start_values=start_values,
                               record=record, progress=progress, tolerance=tolerance, timing=timing,
-                              coupling_order=coupling_order, max_step=max_step, sink=sink, max_steps=max_steps)
+                              coupling_order=coupling_order, max_step=max_step, sink=sink, max_steps=max_steps,
+                              implicit=implicit)
 
 
 def experiment(scenario: Scenario, stop_time: float | None, step_size: float | None,
@@ -278,9 +285,16 @@ class Simulation:
             progress: Callable[[float], None] | None = None, tolerance: float | None = None,
             timing: dict | None = None, coupling_order: int | None = None,
             max_step: float | None = None, sink: ResultFile | None = None,
-            max_steps: float = MAX_STEPS) -> Result:
+            max_steps: float = MAX_STEPS, implicit: bool | None = None) -> Result:
         """Run the scenario once; the arguments and errors are those of `simulate`."""
         t0, t_stop, h = experiment(self.scenario, stop_time, step_size, max_steps)
+        if implicit is None:
+            implicit = self.scenario.coupling == "implicit" and coupling_order is None
+        if implicit:
+            if coupling_order not in (None, 0):
+                raise ScenarioError(f"coupling order {coupling_order}: implicit coupling passes no derivatives "
+                                    "(its inputs follow the chord of each step); give one or the other")
+            coupling_order = 0
         if tolerance is not None:
             stepcontrol.check_tolerance(tolerance)
             max_step = (t_stop - t0) / 50 if max_step is None else max_step
@@ -303,8 +317,11 @@ class Simulation:
                                self._derivatives(plan, orders, self.instances, coupling_order))
             steppers.append(stepper)
             mains.append(stepper)
-            _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper)
+            _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper, tolerance)
             orders = self._settle_orders(stepper, plan, orders, coupling_order, t0)
+            if implicit:
+                stepper.implicit = self._implicit(stepper, plan)
+                result.implicit = stepper.implicit.statistics
             first_step = h if tolerance is None else min(h, max_step)
             if stepper.derivatives is not None:
                 stepper.derivatives.first_step = first_step       # coupling._Guard's first decision
@@ -319,13 +336,16 @@ class Simulation:
             if attempt == 0:
                 stepcontrol.check_rollback(stepper, t0, min(h, max_step))
             shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop,
-                                          coupling_order)
+                                          coupling_order, tolerance)
             steppers.append(shadow)
+            if implicit:
+                shadow.implicit = self._implicit(shadow, shadow.plan)
             if shadow.derivatives is not None:
                 shadow.derivatives.first_step = 2 * first_step
             shadow.mirror(stepper, set(self.instances) - set(self._shadow_own))
+            degree = 1 if implicit else _degree(result.coupling_orders, plan.dynamic)     # a chord: degree 1
             report = stepcontrol.run(stepper, shadow, result, t0, t_stop, tolerance, h, max_step,
-                                     _degree(result.coupling_orders, plan.dynamic), progress, level)
+                                     degree, progress, level)
             if first is not None:                     # the second run: report both
                 report.passes = 2
                 report.accepted += first.accepted
@@ -384,6 +404,10 @@ class Simulation:
             stepper.reset_counters()
         return orders
 
+    def _implicit(self, stepper: "_Stepper", plan: Plan) -> implicit.Implicit:
+        connections = implicit.implicit_inputs(stepper.instances, self.connections, plan.dynamic)
+        return implicit.Implicit(stepper, connections, plan.slot)
+
     def _plan(self, record, instances) -> Plan:
         key = (None if record is None else tuple(record), instances is self._shadow)
         if key not in self._plans:
@@ -401,7 +425,8 @@ class Simulation:
                                                          plan.slot)
         return self._plans[key]
 
-    def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float, requested: int | None) -> "_Stepper":
+    def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float, requested: int | None,
+                        tolerance: float) -> "_Stepper":
         """The shadow copy for error estimation (stepcontrol.py): a second instance of every FMU with
         connected inputs, sharing the sources (FMUs without connected inputs) with the main copy."""
         fed = {c.end_element for c in self.connections}
@@ -427,7 +452,7 @@ class Simulation:
         own = self._shadow_own
         stepper = _Stepper(self.scenario, shadow, plan, [0.0] * _n_slots(plan),
                            self._derivatives(plan, orders, shadow, requested), stepped=own)
-        _initialize(self.scenario, {name: shadow[name] for name in own}, parameters, t0, t_stop, stepper)
+        _initialize(self.scenario, {name: shadow[name] for name in own}, parameters, t0, t_stop, stepper, tolerance)
         return stepper
 
     def _free_shadow(self) -> None:
@@ -775,9 +800,17 @@ class _Stepper:
         self.step_times = {inst.name: 0.0 for inst in self.order}
         self.n_steps = 0
         self.t = scenario.start_time
+        self.implicit: implicit.Implicit | None = None    # implicit coupling (implicit.py), set by the run
+        self._values_at: float | None = None              # the values are resolved at this time already
 
     def resolve(self, with_derivatives: bool = True) -> None:
         slots = self.slots
+        if self._values_at == self.t:                     # an implicit step resolved them at its end
+            self._values_at = None
+            if self.derivatives is not None and with_derivatives:
+                self._check_failure(self.derivatives_resolve())
+            return
+        self._values_at = None
         try:
             for gets, sets in self.plan.stages:
                 for transfer, _ in gets:
@@ -867,26 +900,55 @@ class _Stepper:
         return out
 
     def step(self, t: float, h: float) -> None:
+        """Step every FMU from t to t + h (with implicit coupling: iterated, the values at t + h resolved)."""
+        if self.implicit is not None:
+            self.implicit.step(t, h)
+            self._values_at = t + h
+        else:
+            self.step_some(t, h, self.do_step)
+        self.n_steps += 1
+        self.t = t + h
+
+    def step_some(self, t: float, h: float, do_step: list) -> None:
+        """fmi2DoStep from t over h of the FMUs `do_step` ([(instance, fmi2DoStep, component)])."""
         tic = time.perf_counter()
         times = self.step_times
-        for inst, fn, comp in self.do_step:
+        for inst, fn, comp in do_step:
             t_in = time.perf_counter()
             status = fn(comp, t, h, 1)
             times[inst.name] += time.perf_counter() - t_in
             if status > 1:
+                self.step_time += time.perf_counter() - tic
                 raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in fmi2DoStep "
                                       f"from t = {t:.9g} s (step {h:.3g} s, status {STATUS[status] if status < 6 else status})"
                                       f"{_last_message(inst)}")
         self.step_time += time.perf_counter() - tic
-        self.n_steps += 1
-        self.t = t + h
+
+    def value_setter(self, component: str, names: list[str]) -> Callable[[list[float]], None]:
+        """A function that sets the Real inputs `names` of `component` to given values."""
+        transfer = _Transfer(self.instances[component], names, "Real", getter=False)
+
+        def set_values(values: list[float]) -> None:
+            for i, v in enumerate(values):
+                transfer.values[i] = v
+            try:
+                transfer()
+            except FMICallException as exc:
+                self._failed(transfer, exc)
+            except NonFiniteValue as exc:
+                raise SimulationError(exc.message(self.t)) from None
+        return set_values
 
 
-def _initialize(scenario, instances, parameters, t0, t_stop, stepper: _Stepper) -> None:
+def _initialize(scenario, instances, parameters, t0, t_stop, stepper: _Stepper, tolerance: float | None = None) -> None:
+    """Set up, set the parameters, propagate the outputs in initialization mode. With a tolerance (an
+    error-controlled run) the FMUs get INTERNAL_TOLERANCE times it in fmi2SetupExperiment, for their
+    own integrators (FMI 2.0 suggests a slave with an error-controlled integrator use it)."""
+    internal = None if tolerance is None else INTERNAL_TOLERANCE * tolerance
     for name, inst in instances.items():
         slave = inst.slave
         try:
-            slave.setupExperiment(startTime=t0, stopTime=t_stop)
+            slave.setupExperiment(tolerance=internal, startTime=t0, stopTime=t_stop)
             for var, value in parameters[name]:
                 setter = {"Real": slave.setReal, "Integer": slave.setInteger,
                           "Boolean": slave.setBoolean, "String": slave.setString}[var.type]

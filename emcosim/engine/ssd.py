@@ -43,9 +43,12 @@ NS = {
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
     "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
+    "emcosim": "urn:emcosim:ssp:annotations",
 }
 OSP_ANNOTATION = "com.opensimulationplatform"
 OMS_ANNOTATION = "org.openmodelica"
+EMCOSIM_ANNOTATION = "org.emcosim"    # our master's default coupling (<emcosim:Coupling method="implicit"/>)
+COUPLINGS = ("explicit", "implicit")
 PARAMETER_SET = "initialValues"       # the one name of every .ssv set: `ecos` applies the sets of the name it is given
 SSD_NAME = "SystemStructure.ssd"
 TYPES = ("Real", "Integer", "Boolean", "String")
@@ -114,6 +117,7 @@ class Scenario:
     step_size: float | None = None
     description: str | None = None
     notes: list[str] = field(default_factory=list)   # XML comments of the .ssd (documentation)
+    coupling: str | None = None              # "explicit" or "implicit": our master's default (None: explicit)
 
     def component(self, name: str) -> Component:
         for c in self.components:
@@ -254,6 +258,13 @@ def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
                                "/osp:Algorithm/osp:FixedStepAlgorithm", NS)
         if algo is not None:
             scenario.step_size = _float(_attr(algo, "baseStepSize", ssd), ssd, "baseStepSize")
+        coupling = experiment.find(f"ssd:Annotations/ssc:Annotation[@type='{EMCOSIM_ANNOTATION}']"
+                                   "/emcosim:Coupling", NS)
+        if coupling is not None:
+            scenario.coupling = _attr(coupling, "method", ssd)
+            if scenario.coupling not in COUPLINGS:
+                raise ScenarioError(f"{ssd}: emcosim:Coupling method=\"{scenario.coupling}\" must be one of "
+                                    f"{', '.join(COUPLINGS)}")
     scenario.notes = notes
     if fmu_dir is not None:
         for comp in components:
@@ -532,6 +543,10 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
     lines.append(f'      <ssc:Annotation type="{OSP_ANNOTATION}">')
     lines.append(f'        <osp:Algorithm><osp:FixedStepAlgorithm baseStepSize="{step_size!r}"/></osp:Algorithm>')
     lines.append("      </ssc:Annotation>")
+    if scenario.coupling is not None:
+        lines.append(f'      <ssc:Annotation type="{EMCOSIM_ANNOTATION}">')
+        lines.append(f'        <emcosim:Coupling method="{scenario.coupling}"/>')
+        lines.append("      </ssc:Annotation>")
     lines.append("    </ssd:Annotations>")
     lines.append("  </ssd:DefaultExperiment>")
     lines += ["</ssd:SystemStructureDescription>", ""]

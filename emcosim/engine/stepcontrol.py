@@ -46,6 +46,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
+from . import implicit
 from .errors import ScenarioError, SimulationError
 
 AIM = 0.5             # aim of the global error, relative to the tolerance
@@ -56,6 +57,7 @@ LOW, HIGH = 0.2, 1.5  # a run whose estimate ends outside [LOW, HIGH] * toleranc
 SUBSTEPS = 2          # steps of the main copy per step of the shadow copy
 LEVEL_FLOOR = 1e-4    # eps never falls below this times the aim (a diverging estimate cannot stall the run)
 STABLE_GROWTH = 1.02  # a step bound learnt from an unstable long step rises this much per step
+ITERATION = 0.1       # implicit coupling: the inputs' residual at the end of a step, relative to eps
 
 
 @dataclass
@@ -88,7 +90,12 @@ def check_tolerance(tolerance: float) -> None:
 
 
 class _Defect:
-    """The extrapolation defect of the connected inputs of a copy (module docstring, 1)."""
+    """The extrapolation defect of the connected inputs of a copy (module docstring, 1).
+
+    With implicit coupling (implicit.py) an input follows the chord from u(t) to u(t + h), which
+    meets u(t + h) by construction; its defect is then the chord's distance from the parabola through
+    the point before, u(t) and u(t + h): |u''| h^2 / 8 with u'' their second divided difference, the
+    O(h^2) deviation of a second-order coupling (at the first step, with no point before: |u(t + h) - u(t)|)."""
 
     def __init__(self, stepper):
         self.slots = stepper.slots
@@ -99,9 +106,12 @@ class _Defect:
         self.dvalues = d.values if d is not None else []
         self.scale = [0.0] * len(self.inputs)
         self.start: list = []
+        self.chord = stepper.implicit is not None
+        self.history: list[tuple[float, list]] = []        # (t, start) of the points before (chords)
+        self.before: tuple[float, list] | None = None
 
-    def observe(self) -> None:
-        """Take the polynomials handed over at the current point (after resolve)."""
+    def observe(self, t: float) -> None:
+        """Take the polynomials handed over at the point t (after resolve)."""
         slots, dv, scale = self.slots, self.dvalues, self.scale
         start = []
         for i, (s, ds) in enumerate(self.inputs):
@@ -110,9 +120,19 @@ class _Defect:
                 scale[i] = abs(v)
             start.append((v, [dv[j] for j in ds]))
         self.start = start
+        if self.chord:
+            history = self.history
+            while history and history[-1][0] >= t:      # a rolled-back step leaves no point behind
+                history.pop()
+            self.before = history[-1] if history else None
+            self.t = t
+            history.append((t, start))
+            del history[:-3]                            # a rollback over two substeps leaves the one before
 
     def measure(self, h: float) -> float:
         """max |u(t + h) - P(h)| / max |u| after a step of h (after resolve at t + h)."""
+        if self.chord:
+            return self._chord(h)
         slots, scale = self.slots, self.scale
         worst = 0.0
         for i, ((s, _), (v, ders)) in enumerate(zip(self.inputs, self.start)):
@@ -126,6 +146,23 @@ class _Defect:
                 worst = max(worst, abs(new - p) / sc)
         return worst
 
+    def _chord(self, h: float) -> float:
+        slots, scale = self.slots, self.scale
+        worst = 0.0
+        for i, ((s, _), (v, _)) in enumerate(zip(self.inputs, self.start)):
+            new = slots[s]
+            if self.before is None:
+                d = abs(new - v)
+            else:
+                t_prev, start = self.before
+                h_prev = self.t - t_prev
+                second = 2.0 * ((new - v) / h - (v - start[i][0]) / h_prev) / (h + h_prev)
+                d = abs(second) * h * h / 8.0
+            sc = max(scale[i], abs(new))
+            if sc > 0:
+                worst = max(worst, d / sc)
+        return worst
+
 
 def check_rollback(stepper, t0: float, h: float) -> None:
     """Step, restore the state, step again: both must give the same values, or an FMU does not
@@ -133,7 +170,8 @@ def check_rollback(stepper, t0: float, h: float) -> None:
     slaves = [inst.slave for inst in stepper.order]
     states = [s.getFMUstate() for s in slaves]
     rows = []
-    for _ in range(2):
+    implicit, stepper.implicit = stepper.implicit, None     # the FMUs' rollback only (an iteration's
+    for _ in range(2):                                        # Jacobian would differ between the two)
         stepper.t = t0
         stepper.resolve()
         stepper.step(t0, h)
@@ -146,6 +184,7 @@ def check_rollback(stepper, t0: float, h: float) -> None:
         s.freeFMUstate(st)
     stepper.t = t0
     stepper.n_steps -= 2
+    stepper.implicit = implicit
     if rows[0] != rows[1]:
         bad = [c for c, a, b in zip(stepper.plan.columns, *rows) if a != b]
         raise ScenarioError(f"error-controlled steps need FMU-state rollback, but repeating a restored step "
@@ -191,11 +230,14 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
             if last:
                 H = t_stop - t
             states = [s.getFMUstate() for s in slaves]
+            for copy in (main, shadow):
+                if copy.implicit is not None:               # the inputs agree to a tenth of the defect level
+                    copy.implicit.tolerance = max(ITERATION * eps, implicit.ITERATION_FLOOR)
             rows, worst, tt = [], 0.0, t
             try:
                 for j in range(SUBSTEPS):
                     t_next = t_stop if last and j == SUBSTEPS - 1 else t + (j + 1) * H / SUBSTEPS
-                    defect.observe()
+                    defect.observe(tt)
                     main.step(tt, t_next - tt)
                     main.t = t_next
                     main.resolve()
@@ -204,7 +246,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                     tt = t_next
                 if worst > REJECT * eps:
                     raise _Rejected(SAFETY * (eps / worst) ** (1.0 / p))
-                far_defect.observe()
+                far_defect.observe(t)
                 shadow.step(t, tt - t)
                 shadow.t = tt
                 shadow.resolve()
@@ -226,8 +268,9 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                 report.rejected += 1
                 factor = why.args[0] if isinstance(why, _Rejected) else SHRINK
                 h = H / SUBSTEPS * max(SHRINK, min(factor, 0.5))
-                if not isinstance(why, _Rejected) or factor == 0.5:
+                if (not isinstance(why, _Rejected) or factor == 0.5) and main.implicit is None:
                     h_stable = h                         # a bound learnt from the failure, raised slowly
+                    # (implicit coupling has no stability limit: its step grows back at once)
                 continue
             for s, st in zip(slaves, states):
                 s.freeFMUstate(st)

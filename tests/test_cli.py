@@ -81,6 +81,22 @@ def test_default_recording_holds_each_connected_value_once(fmu_dir, tmp_path, ca
     assert list(read_csv(out)) == ["time", "plant.q", "controller.q"]          # --record takes any choice
 
 
+def test_coupling_is_the_scenarios_unless_chosen(fmu_dir, tmp_path, capsys):
+    """mems_regulation_Dd-1 declares implicit coupling (emcosim:Coupling): `info` says so, `run` reports
+    the trial steps; --coupling explicit runs it explicitly; --coupling implicit with a coupling order
+    is refused in one line."""
+    assert main(["info", "mems_regulation_Dd-1"]) == 0
+    assert "implicit coupling" in capsys.readouterr().out
+    args = ["run", "mems_regulation_Dd-1", "--stop-time", "1e-4", "--fmu-dir", str(fmu_dir),
+            "--output", str(tmp_path / "r.csv"), "--no-progress"]
+    assert main(args) == 0
+    assert "implicit coupling: " in capsys.readouterr().out
+    assert main(args + ["--coupling", "explicit"]) == 0
+    assert "implicit coupling" not in capsys.readouterr().out
+    assert main(args + ["--coupling", "implicit", "--coupling-order", "2"]) == 1
+    assert "--coupling-order 2" in one_line_error(capsys)
+
+
 def test_help_says_how_to_choose_variables(capsys):
     with pytest.raises(SystemExit):
         main(["run", "--help"])

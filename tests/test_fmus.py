@@ -265,6 +265,28 @@ def test_plant_matches_components_reference(fmus, identifier, h, n):
     assert error <= 1e-6
 
 
+def test_plant_integrates_at_the_tolerance_of_setup_experiment(fmus):
+    """FMI 2.0 suggests that a slave with an error-controlled integrator use the tolerance of
+    fmi2SetupExperiment (an error-controlled master passes one): the plant's doStep then integrates
+    with rtol = that tolerance, the same numbers as with its parameter rtol set to it, and with the
+    parameter rtol when the master gives none."""
+    def run(tolerance=None, **values):
+        slave = Slave(fmus["MEMS"])
+        slave.fmu.setupExperiment(tolerance=tolerance, startTime=0.0)
+        slave.fmu.enterInitializationMode()
+        slave.set(**values)
+        assert slave.call(slave.fmu.fmi2ExitInitializationMode, slave.fmu.component) == OK
+        slave.set(u=20.0)
+        assert slave.step(0.0, 2e-4) == OK
+        out = slave.get("q", "p", "x_e")
+        slave.free()
+        return out
+
+    assert run(tolerance=1e-4) == run(rtol=1e-4)
+    assert run(tolerance=1e-4) != run()
+    assert run(tolerance=0.5) == run(rtol=1e-2)          # kept within the range PlantStepper accepts
+
+
 def test_plant_energy_output(fmus):
     slave = Slave(fmus["MEMS"])
     slave.init(q_0=2e-5, p_0=1e-10, x_e_0=3e-11)

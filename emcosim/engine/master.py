@@ -291,10 +291,11 @@ class Simulation:
         if implicit is None:
             implicit = self.scenario.coupling == "implicit" and coupling_order is None
         if implicit:
-            if coupling_order not in (None, 0):
-                raise ScenarioError(f"coupling order {coupling_order}: implicit coupling passes no derivatives "
-                                    "(its inputs follow the chord of each step); give one or the other")
-            coupling_order = 0
+            if coupling_order is not None:
+                raise ScenarioError(f"coupling order {coupling_order}: implicit coupling chooses its inputs' "
+                                    "polynomials itself (from the sources' values and first derivatives at the end "
+                                    "of each step); give one or the other")
+            coupling_order = 1                        # the sources' first derivatives, for the Hermite polynomial
         if tolerance is not None:
             stepcontrol.check_tolerance(tolerance)
             max_step = (t_stop - t0) / 50 if max_step is None else max_step
@@ -314,11 +315,11 @@ class Simulation:
                 sink.rewind()                         # the second pass replaces the first's rows
             result = Result(plan.columns, sink=sink)
             stepper = _Stepper(self.scenario, self.instances, plan, [0.0] * _n_slots(plan),
-                               self._derivatives(plan, orders, self.instances, coupling_order))
+                               self._derivatives(plan, orders, self.instances, coupling_order, implicit))
             steppers.append(stepper)
             mains.append(stepper)
             _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper, tolerance)
-            orders = self._settle_orders(stepper, plan, orders, coupling_order, t0)
+            orders = self._settle_orders(stepper, plan, orders, coupling_order, t0, implicit)
             if implicit:
                 stepper.implicit = self._implicit(stepper, plan)
                 result.implicit = stepper.implicit.statistics
@@ -336,14 +337,14 @@ class Simulation:
             if attempt == 0:
                 stepcontrol.check_rollback(stepper, t0, min(h, max_step))
             shadow = self._shadow_stepper(plan.columns if record is None else record, orders, parameters, t0, t_stop,
-                                          coupling_order, tolerance)
+                                          coupling_order, tolerance, implicit)
             steppers.append(shadow)
             if implicit:
                 shadow.implicit = self._implicit(shadow, shadow.plan)
             if shadow.derivatives is not None:
                 shadow.derivatives.first_step = 2 * first_step
             shadow.mirror(stepper, set(self.instances) - set(self._shadow_own))
-            degree = 1 if implicit else _degree(result.coupling_orders, plan.dynamic)     # a chord: degree 1
+            degree = stepper.implicit.degree if implicit else _degree(result.coupling_orders, plan.dynamic)
             report = stepcontrol.run(stepper, shadow, result, t0, t_stop, tolerance, h, max_step,
                                      degree, progress, level)
             if first is not None:                     # the second run: report both
@@ -367,7 +368,7 @@ class Simulation:
         return result
 
     def _settle_orders(self, stepper: "_Stepper", plan: Plan, orders: dict[str, int], requested: int | None,
-                       t0: float) -> dict[str, int]:
+                       t0: float, implicit: bool = False) -> dict[str, int]:
         """FMI 2.0 declares canInterpolateInputs but not up to which derivative order: at the first
         communication point a target that refuses an order k > 1 of fmi2SetRealInputDerivatives
         (fmi2Error) is restored to its state before the call (fmi2SetFMUstate) and coupled at order
@@ -400,13 +401,19 @@ class Simulation:
                 messages.pop()
             orders = coupling.connection_orders(self.instances, self.connections, plan.level, plan.depends,
                                                 requested, self._accepted)
-            stepper.derivatives = self._derivatives(plan, orders, self.instances, requested)
+            stepper.derivatives = self._derivatives(plan, orders, self.instances, requested, implicit)
             stepper.reset_counters()
         return orders
 
     def _implicit(self, stepper: "_Stepper", plan: Plan) -> implicit.Implicit:
+        """Implicit coupling of the inputs of the FMUs with states: Hermite polynomials where every
+        source gives its first derivative (stepper's derivative plan), else chords."""
         connections = implicit.implicit_inputs(stepper.instances, self.connections, plan.dynamic)
-        return implicit.Implicit(stepper, connections, plan.slot)
+        d = stepper.derivatives
+        derivative_slot = None
+        if d is not None and all(d.orders.get(c.end, 0) >= 1 for c in connections):
+            derivative_slot = {c.end: d.slot[(c.end, 1)] for c in connections}
+        return implicit.Implicit(stepper, connections, plan.slot, derivative_slot)
 
     def _plan(self, record, instances) -> Plan:
         key = (None if record is None else tuple(record), instances is self._shadow)
@@ -415,18 +422,22 @@ class Simulation:
         return self._plans[key]
 
     def _derivatives(self, plan: Plan, orders: dict[str, int], instances,
-                     requested: int | None) -> coupling.DerivativePlan | None:
-        extra = coupling.extrapolated_orders(instances, self.connections, orders, requested, self._accepted)
+                     requested: int | None, implicit: bool = False) -> coupling.DerivativePlan | None:
+        """The derivative transfers; implicit coupling reads the sources' derivatives only (no order
+        added by extrapolation, no guard: implicit.py sets the inputs' polynomials itself)."""
+        extra = {} if implicit else coupling.extrapolated_orders(instances, self.connections, orders, requested,
+                                                                  self._accepted)
         if not any(orders.values()) and not extra:
             return None
-        key = ("derivatives", tuple(sorted(orders.items())), tuple(sorted(extra.items())), instances is self._shadow)
+        key = ("derivatives", tuple(sorted(orders.items())), tuple(sorted(extra.items())), implicit,
+               instances is self._shadow)
         if key not in self._plans:
             self._plans[key] = coupling.plan_derivatives(instances, self.connections, plan.level, orders, extra,
-                                                         plan.slot)
+                                                         None if implicit else plan.slot)
         return self._plans[key]
 
     def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float, requested: int | None,
-                        tolerance: float) -> "_Stepper":
+                        tolerance: float, implicit: bool = False) -> "_Stepper":
         """The shadow copy for error estimation (stepcontrol.py): a second instance of every FMU with
         connected inputs, sharing the sources (FMUs without connected inputs) with the main copy."""
         fed = {c.end_element for c in self.connections}
@@ -451,7 +462,7 @@ class Simulation:
         plan = self._plan(record, shadow)
         own = self._shadow_own
         stepper = _Stepper(self.scenario, shadow, plan, [0.0] * _n_slots(plan),
-                           self._derivatives(plan, orders, shadow, requested), stepped=own)
+                           self._derivatives(plan, orders, shadow, requested, implicit), stepped=own)
         _initialize(self.scenario, {name: shadow[name] for name in own}, parameters, t0, t_stop, stepper, tolerance)
         return stepper
 
@@ -807,8 +818,6 @@ class _Stepper:
         slots = self.slots
         if self._values_at == self.t:                     # an implicit step resolved them at its end
             self._values_at = None
-            if self.derivatives is not None and with_derivatives:
-                self._check_failure(self.derivatives_resolve())
             return
         self._values_at = None
         try:

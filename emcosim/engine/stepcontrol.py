@@ -57,6 +57,8 @@ LOW, HIGH = 0.2, 1.5  # a run whose estimate ends outside [LOW, HIGH] * toleranc
 SUBSTEPS = 2          # steps of the main copy per step of the shadow copy
 LEVEL_FLOOR = 1e-4    # eps never falls below this times the aim (a diverging estimate cannot stall the run)
 STABLE_GROWTH = 1.02  # a step bound learnt from an unstable long step rises this much per step
+KEEP = 1.5            # implicit coupling: a step that could grow by less than this keeps its size (as
+                      # stiff solvers keep h and their Jacobian, e.g. Radau5): a new size costs a new Jacobian
 ITERATION = 0.1       # implicit coupling: the inputs' residual at the end of a step, relative to eps
 
 
@@ -106,6 +108,7 @@ class _Defect:
         self.dvalues = d.values if d is not None else []
         self.scale = [0.0] * len(self.inputs)
         self.start: list = []
+        self.implicit = stepper.implicit
         self.chord = stepper.implicit is not None
         self.history: list[tuple[float, list]] = []        # (t, start) of the points before (chords)
         self.before: tuple[float, list] | None = None
@@ -147,20 +150,16 @@ class _Defect:
         return worst
 
     def _chord(self, h: float) -> float:
-        slots, scale = self.slots, self.scale
+        slots, dv, scale, mode = self.slots, self.dvalues, self.scale, self.implicit.mode
         worst = 0.0
-        for i, ((s, _), (v, _)) in enumerate(zip(self.inputs, self.start)):
+        for i, ((s, ds), (v, ders)) in enumerate(zip(self.inputs, self.start)):
             new = slots[s]
-            if self.before is None:
-                d = abs(new - v)
-            else:
-                t_prev, start = self.before
-                h_prev = self.t - t_prev
-                second = 2.0 * ((new - v) / h - (v - start[i][0]) / h_prev) / (h + h_prev)
-                d = abs(second) * h * h / 8.0
+            u_prev, h_prev = (None, 0.0) if self.before is None else (self.before[1][i][0], self.t - self.before[0])
+            d_prev, d = (ders[0], dv[ds[0]]) if ders else (None, 0.0)
+            e = implicit.deviation(mode, u_prev, h_prev, d_prev, v, new, d, h)
             sc = max(scale[i], abs(new))
             if sc > 0:
-                worst = max(worst, d / sc)
+                worst = max(worst, e / sc)
         return worst
 
 
@@ -300,6 +299,8 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
             factor = SAFETY * (eps / worst) ** (1.0 / p) if worst > 0 else GROW
             h_stable *= STABLE_GROWTH
             wanted = H / SUBSTEPS * min(GROW, max(SHRINK, factor))
+            if main.implicit is not None and 1.0 <= factor <= KEEP and not last:
+                wanted = H / SUBSTEPS                # implicit coupling: the iteration's Jacobian stays valid
             h = min(h_max, h_stable, wanted)
             macro += 1
             capped += h < wanted

@@ -1,0 +1,132 @@
+"""Implicit coupling (emcosim/engine/implicit.py): every communication step iterated until the inputs of
+the FMUs with states agree with their sources at its end.
+
+Independent truths: the closed form of the toy loop x' = k x (the C toy FMUs integrate a polynomial
+input exactly, so one step multiplies x by the stability function of the coupling: two-stage Radau IIA
+for the Hermite polynomial, the trapezoidal rule for chords), and the monolithic Radau solution of
+the MEMS loops (components.monolithic)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from emcosim.engine.errors import ScenarioError, SimulationError
+from emcosim.engine.master import Simulation, simulate
+from emcosim.engine.ssd import read_scenario, system_structure_xml
+from tests.test_coupling import DYNAMIC, STATIC, loop, make, toy_library  # noqa: F401 - fixtures
+from tests.test_scenarios import ROOT, references  # noqa: F401 - fixture
+
+
+def radau(z: float) -> float:
+    """Stability function of the two-stage Radau IIA method (order 3, L-stable)."""
+    return (1 + z / 3) / (1 - 2 * z / 3 + z * z / 6)
+
+
+def trapezoidal(z: float) -> float:
+    return (1 + z / 2) / (1 - z / 2)
+
+
+@pytest.mark.parametrize("k", [-1.0, -1000.0])
+def test_a_step_is_a_radau_step_of_the_loop(make, k):
+    """x' = k x with k h = -0.01 and -10: x_n = R(k h)^n, R of Radau IIA; at k h = -10 the stiff mode
+    is damped by 0.096 per step (explicit coupling multiplies it by about -9: it diverges)."""
+    h = 0.01
+    s = loop(make, k=k, step_size=h)
+    r = simulate(s, record=["plant.x"], implicit=True)
+    expected = radau(k * h) ** np.arange(len(r))
+    # the iteration stops where the inputs agree to ITERATION_TOL of their largest magnitude (|k| x0)
+    np.testing.assert_allclose(r["plant.x"], expected, rtol=1e-5, atol=1e-6)
+    assert np.max(np.abs(r["plant.x"][10:])) < 1e-5 if k < -100 else True      # damped, not ringing
+    assert r.implicit.steps == 100 and r.implicit.trials >= 100
+    if k == -1000.0:
+        x = simulate(s, record=["plant.x"])["plant.x"] if _runs(s) else None
+        assert x is None or np.max(np.abs(x)) > 1e6
+
+
+def _runs(s) -> bool:
+    try:
+        simulate(s, record=["plant.x"])
+    except SimulationError:
+        return False
+    return True
+
+
+def test_a_target_taking_first_derivatives_only_gets_chords(make):
+    """The plant refuses input derivatives of order 2 (fmi2Error; FMI 2.0 declares no order): the
+    master restores it and couples with chords from then on, the trapezoidal rule on the loop."""
+    h, k = 0.01, -1000.0
+    s = make([("plant", "dynamic", DYNAMIC, True, 3), ("ctrl", "static", STATIC, True, 3)],
+             [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")],
+             {"ctrl": {"k1": k}, "plant": {"x0": 1.0, "input_order": 1.0}}, 0.2, h)
+    r = simulate(s, record=["plant.x"], implicit=True)
+    np.testing.assert_allclose(r["plant.x"], trapezoidal(k * h) ** np.arange(len(r)), rtol=1e-5, atol=1e-6)
+
+
+def test_sources_without_derivatives_give_chords(make):
+    """The controller declares no output derivatives: chords (trapezoidal rule) on the loop."""
+    h, k = 0.01, -3.0
+    s = make([("plant", "dynamic", DYNAMIC, True, 0), ("ctrl", "static", STATIC, True, 0)],
+             [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")], {"ctrl": {"k1": k}, "plant": {"x0": 1.0}}, 0.2, h)
+    r = simulate(s, record=["plant.x"], implicit=True)
+    np.testing.assert_allclose(r["plant.x"], trapezoidal(k * h) ** np.arange(len(r)), rtol=1e-6)
+
+
+def test_global_error_falls_at_order_3(make):
+    errors = []
+    for h in (0.1, 0.05, 0.025):
+        r = simulate(loop(make, step_size=h), record=["plant.x"], implicit=True)
+        errors.append(np.max(np.abs(r["plant.x"] - np.exp(-r.time))))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - 3.0) < 0.2), (errors, orders)
+
+
+def test_implicit_takes_no_coupling_order(make):
+    with pytest.raises(ScenarioError, match="implicit coupling chooses"):
+        simulate(loop(make), implicit=True, coupling_order=2)
+
+
+def test_mems_converges_at_third_order_where_explicit_coupling_is_unstable(fmu_dir, references):
+    """mems_regulation_Dd-1 (a stiff loop: the voltage law feeds back the momentum through D_d = -1)
+    over its full 20 ms against the monolithic reference: implicit coupling converges at order >= 2.6
+    at steps of 40, 20, 10 us; explicit coupling at 20 us errs by more than 1e-2 (its guard holds the
+    input: first order, at the edge of stability)."""
+    from emcosim.paper.reference_check import position_error, samples_for
+    s = read_scenario(ROOT / "scenarios" / "mems_regulation_Dd-1", fmu_dir=fmu_dir)
+    assert s.coupling == "implicit"
+    ref = references(s, s.stop_time, samples_for(s.stop_time, 4e-5, 1001))
+    errors = []
+    with Simulation(s) as sim:
+        for h in (4e-5, 2e-5, 1e-5):
+            r = sim.run(step_size=h, record=["plant.q"])
+            assert r.implicit is not None
+            errors.append(position_error(r.time, r["plant.q"], ref, 1.0))
+        explicit = sim.run(step_size=2e-5, record=["plant.q"], implicit=False)
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders >= 2.6), (errors, orders)
+    assert position_error(explicit.time, explicit["plant.q"], ref, 1.0) > 10 * errors[1]
+
+
+def test_a_step_that_does_not_converge_ends_the_run_clearly(fmu_dir):
+    """mems_tracking_Dd-0.4 at 20 us: the first step (the electrical layer of the charging capacitor)
+    does not converge; the run ends with what to do, and keeps its first row."""
+    s = read_scenario(ROOT / "scenarios" / "mems_tracking_Dd-0.4", fmu_dir=fmu_dir)
+    with pytest.raises(SimulationError, match="did not agree within .* take a shorter step") as info:
+        simulate(s, stop_time=1e-4, step_size=2e-5, record=["plant.q"])
+    assert len(info.value.result) >= 1
+
+
+def test_the_scenario_annotation_sets_the_default(make, tmp_path):
+    s = loop(make, k=-1000.0, stop_time=0.05)
+    s.coupling = "implicit"
+    folder = s.path.parent
+    (folder / "SystemStructure.ssd").write_text(
+        system_structure_xml(s, {c.name: str(c.source) for c in s.components}, 0.01))
+    again = read_scenario(folder)
+    assert again.coupling == "implicit"
+    r = simulate(again, record=["plant.x"])
+    np.testing.assert_allclose(r["plant.x"], radau(-10.0) ** np.arange(len(r)), rtol=1e-5, atol=1e-6)
+    assert getattr(simulate(again, record=["plant.x"], coupling_order=1), "implicit", None) is None   # explicit
+    text = (folder / "SystemStructure.ssd").read_text()
+    (folder / "SystemStructure.ssd").write_text(text.replace('method="implicit"', 'method="iterative"'))
+    with pytest.raises(ScenarioError, match='method="iterative" must be one of explicit, implicit'):
+        read_scenario(folder)

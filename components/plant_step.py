@@ -234,7 +234,8 @@ class PlantStepper:
         if plant.n_m != 1 or plant.n_e != 1:
             raise NotImplementedError(f"{plant.name}: PlantStepper handles n_m = n_e = 1")
         if not (math.isfinite(rtol) and RTOL_RANGE[0] <= rtol <= RTOL_RANGE[1]):
-            raise ValueError(f"parameter rtol = {rtol} violates {RTOL_RANGE[0]:g} <= rtol <= {RTOL_RANGE[1]:g} "
+            low, high = (f"{v:.0e}".replace("e-0", "e-") for v in RTOL_RANGE)      # 1e-14, 1e-2
+            raise ValueError(f"parameter rtol = {rtol} violates {low} <= rtol <= {high} "
                              "(relative tolerance of the plant integration)")
         self.plant = plant
         self.rtol = float(rtol)

@@ -55,6 +55,7 @@ ITERATION_FLOOR = 1e-7  # never asked for less: about what the FMUs' own integra
 MAX_TRIALS = 16         # trial steps per communication step (the first included)
 BACKTRACK = 3           # halvings of a Newton step that makes the residual larger
 STALL = 0.5             # a trial that does not shrink the residual below this factor renews the Jacobian
+JACOBIAN_RANGE = 1.25   # a Jacobian serves steps within this factor of the one it was taken at
 PERTURBATION = 1e-6     # finite-difference perturbation, relative to the input's scale
 
 
@@ -88,19 +89,19 @@ def implicit_inputs(instances: dict, connections, dynamic: set[str]) -> list:
 
 def deviation(mode: str, u_prev: float | None, h_prev: float, d_prev: float | None, u0: float, c: float,
               d: float, h: float) -> float:
-    """How far the step's input polynomial lies from the next higher one (the coupling's own error of
-    the step, for step control and the iteration's stop), in the input's unit:
+    """How far the step's input polynomial lies from the next higher one: the coupling's own error of
+    the step (stepcontrol's defect), in the input's unit:
 
     - hermite: the cubic that also meets the source's derivative d_prev at t_n differs from the
       parabola by m s (1 - s/h)^2, m = d_prev - u'(0), at most 4 |m| h / 27: O(h^3);
-    - chord / hold: the parabola through the point before (u_prev, h_prev earlier), u0 and c differs
-      from the chord by at most |u''| h^2 / 8 (u'' its second divided difference): O(h^2); at the
-      first step (no point before) |c - u0|.
+    - chord: the parabola through the point before (u_prev, h_prev earlier), u0 and c differs from
+      the chord by at most |u''| h^2 / 8 (u'' their second divided difference): O(h^2);
+    - hold, or a chord at the first step (no point before): |c - u0|, O(h).
     """
     if mode == "hermite" and d_prev is not None:
         slope = (2.0 * (c - u0) - d * h) / h
         return 4.0 * abs(d_prev - slope) * h / 27.0
-    if u_prev is None:
+    if mode == "hold" or u_prev is None:
         return abs(c - u0)
     second = 2.0 * ((c - u0) / h - (u0 - u_prev) / h_prev) / (h + h_prev)
     return abs(second) * h * h / 8.0
@@ -198,7 +199,7 @@ class Implicit:
                                    f"within {MAX_TRIALS} trials of the step from t = {t:.9g} s over "
                                    f"h = {h:.3g} s (residual {self._error(r, z, h):.2g} of their scale; tolerance "
                                    f"{self.tolerance:.2g}): take a shorter step")
-            if self.jacobian is None or not 0.8 <= h / self.jacobian_step <= 1.25:
+            if self.jacobian is None or not 1 / JACOBIAN_RANGE <= h / self.jacobian_step <= JACOBIAN_RANGE:
                 self._finite_differences(t, h, u0, z, r, states)
                 trials += len(z)
                 fresh = True

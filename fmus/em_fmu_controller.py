@@ -96,7 +96,9 @@ class ControllerSlave(EMSlave):
         self._u = None
 
     def u_value(self) -> float:
-        if self._u is None:
+        """u at the current inputs, computed once per input change (before initialization, when parameters
+        may still change, at every call)."""
+        if self._u is None or self.controller is None:
             self._u, self._u_error = self.compute_u()
             if self._u_error:
                 self.log_error(self._u_error)

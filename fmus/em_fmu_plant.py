@@ -67,9 +67,10 @@ class PlantSlave(EMSlave):
         return self.eta if self.eta is not None else self.initial()
 
     def energy(self) -> float:
+        if self.plant is None:                                  # before initialization: parameters may change
+            return float(self.make_plant().H(self.state()))
         if self._H is None:
-            plant = self.plant if self.plant is not None else self.make_plant()
-            self._H = float(plant.H(self.state()))
+            self._H = float(self.plant.H(self.state()))
         return self._H
 
     # ---- life cycle -----------------------------------------------------------------------------

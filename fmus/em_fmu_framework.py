@@ -595,7 +595,6 @@ class EMSlave(Fmi2Slave):
                                         values: list[float]) -> tuple[int, str]:
         """Store d^order(input)/dt^order at the current communication point for the next doStep
         (`input_derivatives`; all or nothing). Returns (fmi2Status, message)."""
-        where = f"{self.model_identifier}: fmi2SetRealInputDerivatives"
         try:
             names = self._derivative_sets.get((tuple(vrs), tuple(orders)))
             if names is not None:                                     # fast path: a request checked before
@@ -608,6 +607,10 @@ class EMSlave(Fmi2Slave):
                             store[name] = rates = {}
                         rates[order] = float(value)
                     return _OK
+        except Exception:                                             # noqa: BLE001 - found again below
+            pass
+        where = f"{self.model_identifier}: fmi2SetRealInputDerivatives"
+        try:
             if not self.can_interpolate_inputs:
                 return ERROR, f"{where}: this FMU does not interpolate inputs (canInterpolateInputs = false)"
             staged: dict[str, dict[int, float]] = {}

@@ -48,7 +48,7 @@ class ReferenceSlave(EMSlave):
     def jet(self) -> tuple[float, float, float, float]:
         if self._jet_time != self.time or self.reference is None:
             reference = self.reference if self.reference is not None else self.make_reference()
-            self._jet = tuple(float(v) for v in reference.values(self.time))
+            self._jet = tuple(map(float, reference.values(self.time)))
             self._jet_time = self.time if self.reference is not None else None
         return self._jet
 

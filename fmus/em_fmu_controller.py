@@ -96,7 +96,9 @@ class ControllerSlave(EMSlave):
         self._u = None
 
     def u_value(self) -> float:
-        if self._u is None:
+        """u at the current inputs, computed once per input change (before initialization, when parameters
+        may still change, at every call)."""
+        if self._u is None or self.controller is None:
             self._u, self._u_error = self.compute_u()
             if self._u_error:
                 self.log_error(self._u_error)
@@ -138,17 +140,19 @@ class ControllerSlave(EMSlave):
     # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
     def u_derivative(self, directions: list[float]) -> float:
         """sum_j du/d(input_j) directions_j at the current inputs (ValueError with the reason)."""
-        x = [self.values[name] for name in self.input_names]
-        for name, value in zip(self.input_names, x):
-            if not math.isfinite(value):
-                raise ValueError(f"input {name} = {value} is not finite")
+        values = self.values
+        x = [values[name] for name in self.input_names]
+        if not math.isfinite(sum(x)):                          # some input is nan or inf (or the sum overflows)
+            for name, value in zip(self.input_names, x):
+                if not math.isfinite(value):
+                    raise ValueError(f"input {name} = {value} is not finite")
         controller = self.controller if self.controller is not None else self.make_controller()
         return float(controller.u_derivative(x, directions))
 
     def output_derivative(self, name: str, order: int) -> float:
         """du/dt = (du/d inputs) (d inputs/dt), the input rates as set by the master (0 where none)."""
-        rates = [self.input_derivatives.get(n, {}).get(1, 0.0) for n in self.input_names]
-        return self.u_derivative(rates)
+        rates = self.input_derivatives
+        return self.u_derivative([rates[n].get(1, 0.0) if n in rates else 0.0 for n in self.input_names])
 
     def directional_derivative(self, unknowns: list[str], knowns: list[str], seeds: list[float]) -> list[float]:
         """sum_j du/d(knowns_j) seeds_j for each unknown (u is the only output)."""

@@ -27,8 +27,10 @@
 - FMI 2.0 derivatives: pythonfmu 0.7.0 does not implement fmi2SetRealInputDerivatives,
   fmi2GetRealOutputDerivatives and fmi2GetDirectionalDerivative; the FMU's binary (the loader,
   emcosim_fmu_loader.c) answers them by calling the `fmi2_*` methods below on the slave it takes with
-  `take_new_slave` (contract: validation here, physics in the adapters' hooks `output_derivative` and
-  `directional_derivative`; the capabilities are class attributes written into modelDescription.xml).
+  `take_new_slave` (contract: validation here, physics in the adapters' hooks `output_derivative` (or
+  `output_derivatives`, a whole request at once) and `directional_derivative`; the capabilities are class
+  attributes written into modelDescription.xml). A derivative request (value references and orders)
+  is checked once; a master repeats it at every communication point.
 - Layout: this module, the adapters and a copy of components/ and of pythonfmu's Python package live in
   the FMU's bundle package `emcosim_fmu_<build tag>` (build.py), and import each other relatively. All
   Python FMUs of a process share one interpreter and its sys.modules; names unique to the build keep
@@ -200,6 +202,10 @@ class EMSlave(Fmi2Slave):
         self.tolerance: float | None = None      # fmi2SetupExperiment's tolerance, if the master defined one
         self._set_names: tuple[list[int], list[str]] = ([], [])     # the last Real inputs set: vrs, names
         self.input_derivatives: dict[str, dict[int, float]] = {}     # input name -> {order: value}
+        # validated derivative requests: (vrs, orders) -> names (set) or [(name, order)] (get); a master
+        # repeats the same request at every communication point, so it is checked once
+        self._derivative_sets: dict[tuple, list[str]] = {}
+        self._derivative_gets: dict[tuple, list[tuple[str, int]]] = {}
         self.declare()
         keep_thread_state()
         _NEW_SLAVES[threading.get_ident()] = self
@@ -591,6 +597,20 @@ class EMSlave(Fmi2Slave):
                                         values: list[float]) -> tuple[int, str]:
         """Store d^order(input)/dt^order at the current communication point for the next doStep
         (`input_derivatives`; all or nothing). Returns (fmi2Status, message)."""
+        try:
+            names = self._derivative_sets.get((tuple(vrs), tuple(orders)))
+            if names is not None:                                     # fast path: a request checked before
+                total = sum(values)
+                if total - total == 0.0:                              # all finite (else nan, or an overflow)
+                    store = self.input_derivatives
+                    for name, order, value in zip(names, orders, values):
+                        rates = store.get(name)
+                        if rates is None:
+                            store[name] = rates = {}
+                        rates[order] = float(value)
+                    return _OK
+        except Exception:                                             # noqa: BLE001 - found again below
+            pass
         where = f"{self.model_identifier}: fmi2SetRealInputDerivatives"
         try:
             if not self.can_interpolate_inputs:
@@ -608,13 +628,26 @@ class EMSlave(Fmi2Slave):
                 staged.setdefault(name, {})[order] = float(value)
             for name, derivatives in staged.items():
                 self.input_derivatives.setdefault(name, {}).update(derivatives)
+            self._derivative_sets[(tuple(vrs), tuple(orders))] = [self._real_inputs[vr] for vr in vrs]
             return OK, ""
         except Exception as exc:                                      # noqa: BLE001 - reported, never raised
             return ERROR, f"{where} failed: {type(exc).__name__}: {exc}"
 
     def fmi2_get_real_output_derivatives(self, vrs: list[int], orders: list[int]) -> tuple[int, list[float], str]:
         """d^order(output)/dt^order at the current communication point, from the hook
-        `output_derivative`. Returns (fmi2Status, values, message)."""
+        `output_derivatives` (`output_derivative` for each entry). A request checked once (value references
+        and orders) is not checked again. Returns (fmi2Status, values, message)."""
+        key = None
+        try:
+            key = (tuple(vrs), tuple(orders))
+            requests = self._derivative_gets.get(key)
+            if requests is not None:                                  # fast path: a request checked before
+                values = self.output_derivatives(requests)
+                total = sum(values)
+                if total - total == 0.0:                              # all finite (else nan, or an overflow)
+                    return OK, values, ""
+        except Exception:                                             # noqa: BLE001 - found again below
+            pass
         where = f"{self.model_identifier}: fmi2GetRealOutputDerivatives"
         name, order = "", 0
         try:
@@ -633,6 +666,8 @@ class EMSlave(Fmi2Slave):
                 if not math.isfinite(value):
                     return ERROR, [], f"{where}: derivative of order {order} of {name} = {value} is not finite"
                 values.append(value)
+            if key is not None:
+                self._derivative_gets[key] = requests
             return OK, values, ""
         except (ValueError, ArithmeticError) as exc:
             return ERROR, [], f"{where}: derivative of order {order} of {name}: {exc}"
@@ -676,6 +711,12 @@ class EMSlave(Fmi2Slave):
         """Hook: d^order(output `name`)/dt^order at the current communication point. Raise ValueError
         (or ArithmeticError) with the reason when it cannot be computed."""
         raise ValueError(f"output derivatives are not provided by {self.model_identifier}")
+
+    def output_derivatives(self, requests: list[tuple[str, int]]) -> list[float]:
+        """Hook: the floats `output_derivative(name, order)` for a checked request [(name, order), ...],
+        all at once (an adapter computes what the entries share once). Any exception, or a value that
+        is not finite, makes the caller ask `output_derivative` entry by entry to report it."""
+        return [float(self.output_derivative(name, order)) for name, order in requests]
 
     def directional_derivative(self, unknowns: list[str], knowns: list[str], seeds: list[float]) -> list[float]:
         """Hook: for each output in `unknowns`, sum_j d(output)/d(knowns_j) * seeds_j."""

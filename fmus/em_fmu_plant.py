@@ -22,6 +22,7 @@ from .components.plant_step import DEFAULT_RTOL, RTOL_RANGE, PlantStepper, StepF
 from .em_fmu_framework import EMSlave
 
 STATE_NAMES = ("q", "p", "x_e")
+OUTPUT_INDEX = {"q": 0, "p": 1, "x_e": 2, "H": 3}              # output -> its entry in time_derivatives' rows
 
 
 class PlantSlave(EMSlave):
@@ -67,9 +68,10 @@ class PlantSlave(EMSlave):
         return self.eta if self.eta is not None else self.initial()
 
     def energy(self) -> float:
+        if self.plant is None:                                  # before initialization: parameters may change
+            return float(self.make_plant().H(self.state()))
         if self._H is None:
-            plant = self.plant if self.plant is not None else self.make_plant()
-            self._H = float(plant.H(self.state()))
+            self._H = float(self.plant.H(self.state()))
         return self._H
 
     # ---- life cycle -----------------------------------------------------------------------------
@@ -135,12 +137,23 @@ class PlantSlave(EMSlave):
     def output_derivative(self, name: str, order: int) -> float:
         """d^order/dt^order of q, p, x_e or H at the current communication point: eta' = f(eta, u),
         eta'' = F hess H eta' + g u' (components: PlantStepper.time_derivatives)."""
+        return self.output_derivatives([(name, order)])[0]
+
+    def output_derivatives(self, requests: list[tuple[str, int]]) -> list[float]:
+        """`output_derivative` for every (name, order) of a request, from one `time_derivatives`."""
+        rows = self.time_derivatives()
+        return [float(rows[order][OUTPUT_INDEX[name]]) for name, order in requests]
+
+    def time_derivatives(self) -> tuple:
+        """(None, (q', p', x_e', H'), (q'', p'', x_e'', H'')) at the current state with the input in force
+        (the value and rate the master set, else the end of the last step's polynomial), computed once
+        per state and input."""
         u, du = self.u_end if self.u_end is not None else (self.values["u"], self.input_rates()[0])
-        key = (self.state(), u, du)
+        stepper = self.stepper
+        key = (self.state(), u, du, stepper)                    # before initialization: the parameters' own
         if self._rates is None or self._rates[0] != key:
-            stepper = self.stepper if self.stepper is not None else PlantStepper(self.make_plant(), self.values["rtol"])
-            self._rates = (key, stepper.time_derivatives(*key[0], u, du))
-        first, second, H1, H2 = self._rates[1]
-        if name == "H":
-            return H1 if order == 1 else H2
-        return (first if order == 1 else second)[STATE_NAMES.index(name)]
+            if stepper is None:
+                stepper = PlantStepper(self.make_plant(), self.values["rtol"])
+            first, second, H1, H2 = stepper.time_derivatives(*key[0], u, du)
+            self._rates = (key, (None, (*first, H1), (*second, H2)))      # indexed by the order
+        return self._rates[1]

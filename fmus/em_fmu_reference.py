@@ -48,7 +48,7 @@ class ReferenceSlave(EMSlave):
     def jet(self) -> tuple[float, float, float, float]:
         if self._jet_time != self.time or self.reference is None:
             reference = self.reference if self.reference is not None else self.make_reference()
-            self._jet = tuple(float(v) for v in reference.values(self.time))
+            self._jet = tuple(map(float, reference.values(self.time)))
             self._jet_time = self.time if self.reference is not None else None
         return self._jet
 
@@ -57,15 +57,22 @@ class ReferenceSlave(EMSlave):
 
     # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
     def output_derivative(self, name: str, order: int) -> float:
-        """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order).
-        q*, ..., q*^(3 + max order) are computed once per communication point: a master asks for every
-        output at every order in one call (12 values)."""
-        return self.all_derivatives()[OUTPUT_INDEX[name] + order]
+        """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order)."""
+        return self.all_derivatives(OUTPUT_INDEX[name] + order)[OUTPUT_INDEX[name] + order]
 
-    def all_derivatives(self) -> tuple[float, ...]:
-        """(q*, q*', ..., q*^(3 + max_output_derivative_order)) at the current communication point."""
-        if self._derivatives_time != self.time or self.reference is None:
+    def output_derivatives(self, requests: list[tuple[str, int]]) -> list[float]:
+        """`output_derivative` for every (name, order) of a request, from one `all_derivatives`: a master
+        asks for every output at its orders in one call."""
+        entries = [OUTPUT_INDEX[name] + order for name, order in requests]
+        derivatives = self.all_derivatives(max(entries, default=0))
+        return [float(derivatives[k]) for k in entries]
+
+    def all_derivatives(self, top: int) -> tuple[float, ...]:
+        """(q*, q*', ..., q*^(n)) at the current communication point, n >= top, computed once per
+        communication point up to the highest order asked for (components.references.Reference.derivatives:
+        each entry is the same whatever the order asked)."""
+        if self._derivatives_time != self.time or len(self._derivatives) <= top or self.reference is None:
             reference = self.reference if self.reference is not None else self.make_reference()
-            self._derivatives = reference.derivatives(self.time, len(OUTPUTS) - 1 + self.max_output_derivative_order)
+            self._derivatives = reference.derivatives(self.time, top)
             self._derivatives_time = self.time if self.reference is not None else None
         return self._derivatives

@@ -380,10 +380,11 @@ class DerivativePlan:
 
 def plan_derivatives(instances: dict, connections, level: dict[str, int], orders: dict[str, int],
                      extrapolated: dict[str, int] | None = None,
-                     value_slot: dict[str, int] | None = None) -> DerivativePlan:
+                     value_slot: dict[str, int] | None = None, read_only: set[str] | None = None) -> DerivativePlan:
     """The derivative transfers for the connection orders `orders` (connection_orders) and the
     inputs that get one order more by extrapolation (extrapolated_orders); value_slot: full name ->
-    slot of the master's value buffer (for an extrapolated first order)."""
+    slot of the master's value buffer (for an extrapolated first order). read_only: inputs whose
+    sources' derivatives are got but not set on them (implicit.py sets those inputs itself)."""
     slot: dict[tuple[str, int], int] = {}
 
     def slot_of(key: tuple[str, int]) -> int:
@@ -424,7 +425,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
             sets = []
             targets: dict[str, list] = {}
             for c in connections:
-                if level[c.start] == lv and orders[c.end] >= k:
+                if level[c.start] == lv and orders[c.end] >= k and c.end not in (read_only or ()):
                     targets.setdefault(c.end_element, []).append(c)
             for comp, conns in targets.items():
                 t = DerivativeTransfer(instances[comp], [(c.end_connector, k) for c in conns], getter=False)

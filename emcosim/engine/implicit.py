@@ -39,12 +39,14 @@ Nothing here knows the models: any FMU with canGetAndSetFMUstate takes part.
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import fmi2FMUstate
 
 from .coupling import DerivativeTransfer, capabilities
 from .errors import ScenarioError, SimulationError
@@ -107,6 +109,38 @@ def deviation(mode: str, u_prev: float | None, h_prev: float, d_prev: float | No
     return abs(second) * h * h / 8.0
 
 
+class _States:
+    """fmi2GetFMUstate / fmi2SetFMUstate / fmi2FreeFMUstate of a list of FMUs, as raw ctypes calls (a
+    trial step restores the FMUs' states; fmpy's wrappers add a Python layer per call)."""
+
+    def __init__(self, instances: list):
+        self.instances = instances
+        self.calls = [(inst, inst.slave.component, inst.slave._functions["fmi2GetFMUstate"],
+                       inst.slave._functions["fmi2SetFMUstate"], inst.slave._functions["fmi2FreeFMUstate"])
+                      for inst in instances]
+
+    def save(self, t: float) -> list:
+        states = []
+        for inst, component, get, _, _ in self.calls:
+            state = fmi2FMUstate()
+            if get(component, ctypes.byref(state)) > 1:
+                self.free(states)
+                raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in fmi2GetFMUstate at "
+                                      f"t = {t:.9g} s (implicit coupling rolls it back)")
+            states.append(state)
+        return states
+
+    def restore(self, states: list, t: float) -> None:
+        for (inst, component, _, set_, _), state in zip(self.calls, states):
+            if set_(component, state) > 1:
+                raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in fmi2SetFMUstate at "
+                                      f"t = {t:.9g} s (implicit coupling rolls it back)")
+
+    def free(self, states: list) -> None:
+        for (_, component, _, _, free), state in zip(self.calls, states):
+            free(component, ctypes.byref(state))
+
+
 class _Refused(Exception):
     """The target refused the input derivative of order 2 (FMI 2.0 does not declare the orders taken)."""
 
@@ -116,7 +150,7 @@ class Implicit:
 
     stepper: the stepper whose `step` calls this; connections: those of `implicit_inputs`;
     value_slot: full name -> slot of the stepper's value buffer; derivative_slot: input full name ->
-    slot of the source's first derivative in the stepper's derivative plan (`stepper.derivatives`),
+    (slot of its source's first derivative in the stepper's derivative plan, the connection's factor),
     for the Hermite polynomial (None: chords); tolerance: the iteration tolerance."""
 
     def __init__(self, stepper, connections, value_slot: dict[str, int],
@@ -143,6 +177,7 @@ class Implicit:
                 self.sets.append((DerivativeTransfer(inst, entries, getter=False), idx))
         rolled = set(by_target)
         self.rolled = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name in rolled]
+        self.states = _States([inst for inst, _, _ in self.rolled])
         self.once = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name not in rolled]
         self.n = len(self.inputs)
         self.scale = [0.0] * (2 * self.n)       # values, then derivatives
@@ -162,12 +197,12 @@ class Implicit:
         afterwards the values (and, Hermite, the derivatives) at t + h are resolved."""
         stepper = self.stepper
         u0 = [stepper.slots[s] for s in self.slots]
-        d0 = [stepper.derivatives.values[s] for s in self.derivative_slots]
+        d0 = self.source_derivatives()
         for i, v in enumerate(u0 + d0):
             if abs(v) > self.scale[i]:
                 self.scale[i] = abs(v)
-        states = [inst.slave.getFMUstate() for inst, _, _ in self.rolled]
-        self._once_done = False
+        states = self.states.save(t)
+        self._once_done = self._moved = False
         try:
             try:
                 trials = self._iterate(t, h, u0, d0, states)
@@ -175,8 +210,7 @@ class Implicit:
                 self._chords_only()
                 trials = self._iterate(t, h, u0, [], states)
         finally:
-            for (inst, _, _), st in zip(self.rolled, states):
-                inst.slave.freeFMUstate(st)
+            self.states.free(states)
         self.statistics.steps += 1
         self.statistics.trials += trials
         history = self.history
@@ -277,8 +311,9 @@ class Implicit:
         """Step from t with the polynomials ending at z; the residual G(z) - z at t + h. The FMUs
         with implicit inputs start from `states` (t), the others are stepped by the first trial only."""
         stepper, n = self.stepper, self.n
-        for (inst, _, _), st in zip(self.rolled, states):
-            inst.slave.setFMUstate(st)
+        if self._moved:                            # the FMUs are still at t before the first trial
+            self.states.restore(states, t)
+        self._moved = True
         for setter, idx in self.sets:
             if self.mode == "hold":
                 setter([z[i] for i in idx])
@@ -300,9 +335,14 @@ class Implicit:
         slots = stepper.slots
         r = [slots[s] - zi for s, zi in zip(self.slots, z)]
         if self.mode == "hermite":
-            dv = stepper.derivatives.values
-            r += [dv[s] - zi for s, zi in zip(self.derivative_slots, z[n:])]
+            r += [d - zi for d, zi in zip(self.source_derivatives(), z[n:])]
         return r
+
+    def source_derivatives(self) -> list[float]:
+        """The sources' first derivatives (times the connections' factors) at the last resolve, for the
+        Hermite polynomial (empty for chords and holds)."""
+        dv = self.stepper.derivatives.values if self.derivative_slots else None
+        return [dv[s] * f for s, f in self.derivative_slots]
 
     def _call(self, transfer: DerivativeTransfer, t: float) -> None:
         try:

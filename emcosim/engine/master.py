@@ -41,7 +41,8 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from fmpy import calloc, free
 
-from . import coupling, dependencies, implicit, stepcontrol, tempdirs, units
+from . import coupling, dependencies, stepcontrol, tempdirs, units
+from . import implicit as implicit_                 # `implicit` is the run's flag
 from .errors import ScenarioError, SimulationError
 from .results import Result, ResultFile
 from .ssd import Scenario, extract_archive, parse_value
@@ -178,7 +179,7 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         many as both ends of a connection declare (up to coupling.MAX_ORDER), 0 for a zero-order
         hold everywhere, k to use at most k.
     implicit: iterate every communication step until the inputs of the FMUs with states agree with
-        their sources at its end (implicit.py: stable on stiff loops at any step, second order;
+        their sources at its end (implicit.py: stable on stiff loops at any step, third order;
         `result.implicit` gives the trial steps); takes no coupling_order (the inputs follow chords).
         None (default): the scenario's choice (its emcosim:Coupling annotation), explicit if it makes
         none or if a coupling_order is given.
@@ -405,15 +406,15 @@ class Simulation:
             stepper.reset_counters()
         return orders
 
-    def _implicit(self, stepper: "_Stepper", plan: Plan) -> implicit.Implicit:
+    def _implicit(self, stepper: "_Stepper", plan: Plan) -> implicit_.Implicit:
         """Implicit coupling of the inputs of the FMUs with states: Hermite polynomials where every
         source gives its first derivative (stepper's derivative plan), else chords."""
-        connections = implicit.implicit_inputs(stepper.instances, self.connections, plan.dynamic)
+        connections = implicit_.implicit_inputs(stepper.instances, self.connections, plan.dynamic)
         d = stepper.derivatives
         derivative_slot = None
         if d is not None and all(d.orders.get(c.end, 0) >= 1 for c in connections):
-            derivative_slot = {c.end: d.slot[(c.end, 1)] for c in connections}
-        return implicit.Implicit(stepper, connections, plan.slot, derivative_slot)
+            derivative_slot = {c.end: (d.slot[(c.start, 1)], c.factor) for c in connections}
+        return implicit_.Implicit(stepper, connections, plan.slot, derivative_slot)
 
     def _plan(self, record, instances) -> Plan:
         key = (None if record is None else tuple(record), instances is self._shadow)
@@ -432,8 +433,10 @@ class Simulation:
         key = ("derivatives", tuple(sorted(orders.items())), tuple(sorted(extra.items())), implicit,
                instances is self._shadow)
         if key not in self._plans:
+            read_only = {c.end for c in implicit_.implicit_inputs(instances, self.connections, plan.dynamic)} \
+                if implicit else None
             self._plans[key] = coupling.plan_derivatives(instances, self.connections, plan.level, orders, extra,
-                                                         None if implicit else plan.slot)
+                                                         None if implicit else plan.slot, read_only)
         return self._plans[key]
 
     def _shadow_stepper(self, record, orders, parameters, t0: float, t_stop: float, requested: int | None,
@@ -811,7 +814,7 @@ class _Stepper:
         self.step_times = {inst.name: 0.0 for inst in self.order}
         self.n_steps = 0
         self.t = scenario.start_time
-        self.implicit: implicit.Implicit | None = None    # implicit coupling (implicit.py), set by the run
+        self.implicit: implicit_.Implicit | None = None   # implicit coupling (implicit.py), set by the run
         self._values_at: float | None = None              # the values are resolved at this time already
 
     def resolve(self, with_derivatives: bool = True) -> None:

@@ -102,14 +102,18 @@ class _Defect:
     def __init__(self, stepper):
         self.slots = stepper.slots
         d = stepper.derivatives
+        self.implicit = stepper.implicit
+        self.chord = stepper.implicit is not None
         inputs = stepper.plan.input_slots
         dynamic = [(name, s) for name, s in inputs if name.partition(".")[0] in stepper.plan.dynamic]
-        self.inputs = [(s, d.polynomial(name) if d is not None else []) for name, s in dynamic or inputs]
+        if self.chord:                                  # the implicit inputs; their derivatives from `implicit`
+            self.inputs = [(s, []) for s in stepper.implicit.slots]
+        else:
+            self.inputs = [(s, d.polynomial(name) if d is not None else []) for name, s in dynamic or inputs]
         self.dvalues = d.values if d is not None else []
         self.scale = [0.0] * len(self.inputs)
         self.start: list = []
-        self.implicit = stepper.implicit
-        self.chord = stepper.implicit is not None
+        self.d_start: list[float] = []
         self.history: list[tuple[float, list]] = []        # (t, start) of the points before (chords)
         self.before: tuple[float, list] | None = None
 
@@ -124,6 +128,7 @@ class _Defect:
             start.append((v, [dv[j] for j in ds]))
         self.start = start
         if self.chord:
+            self.d_start = self.implicit.source_derivatives()
             history = self.history
             while history and history[-1][0] >= t:      # a rolled-back step leaves no point behind
                 history.pop()
@@ -150,12 +155,13 @@ class _Defect:
         return worst
 
     def _chord(self, h: float) -> float:
-        slots, dv, scale, mode = self.slots, self.dvalues, self.scale, self.implicit.mode
+        slots, scale, mode = self.slots, self.scale, self.implicit.mode
+        d_end = self.implicit.source_derivatives()
         worst = 0.0
-        for i, ((s, ds), (v, ders)) in enumerate(zip(self.inputs, self.start)):
+        for i, ((s, _), (v, _)) in enumerate(zip(self.inputs, self.start)):
             new = slots[s]
             u_prev, h_prev = (None, 0.0) if self.before is None else (self.before[1][i][0], self.t - self.before[0])
-            d_prev, d = (ders[0], dv[ds[0]]) if ders else (None, 0.0)
+            d_prev, d = (self.d_start[i], d_end[i]) if d_end and self.d_start else (None, 0.0)
             e = implicit.deviation(mode, u_prev, h_prev, d_prev, v, new, d, h)
             sc = max(scale[i], abs(new))
             if sc > 0:

@@ -338,6 +338,10 @@ class Implicit:
             r += [d - zi for d, zi in zip(self.source_derivatives(), z[n:])]
         return r
 
+    def transfers(self) -> list[DerivativeTransfer]:
+        """The input-derivative transfers (their `elapsed` is time inside the FMUs)."""
+        return [t for t, _ in self.sets if isinstance(t, DerivativeTransfer)]
+
     def source_derivatives(self) -> list[float]:
         """The sources' first derivatives (times the connections' factors) at the last resolve, for the
         Hermite polynomial (empty for chords and holds)."""

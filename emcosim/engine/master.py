@@ -809,12 +809,12 @@ class _Stepper:
         self.derivatives = derivatives
         self.order = [inst for name, inst in instances.items() if stepped is None or name in stepped]
         self.do_step = [(inst, inst.slave._functions["fmi2DoStep"], inst.slave.component) for inst in self.order]
+        self.implicit: implicit_.Implicit | None = None   # implicit coupling (implicit.py), set by the run
         self.reset_counters()
         self.step_time = 0.0
         self.step_times = {inst.name: 0.0 for inst in self.order}
         self.n_steps = 0
         self.t = scenario.start_time
-        self.implicit: implicit_.Implicit | None = None   # implicit coupling (implicit.py), set by the run
         self._values_at: float | None = None              # the values are resolved at this time already
 
     def resolve(self, with_derivatives: bool = True) -> None:
@@ -899,6 +899,7 @@ class _Stepper:
     def transfers(self) -> list:
         """Every get/set transfer of a communication point (values, records, derivatives)."""
         out = [t for gets, sets in self.plan.stages for t, _ in gets + sets] + [t for t, _ in self.plan.record]
+        out += self.implicit.transfers() if self.implicit is not None else []
         return out + (self.derivatives.transfers() if self.derivatives is not None else [])
 
     def fmu_time(self) -> float:

@@ -71,8 +71,8 @@ class Statistics:
 
     def summary(self) -> str:
         per = self.trials / self.steps if self.steps else 0.0
-        return (f"implicit coupling: {self.trials} trial steps for {self.steps} communication steps ({per:.2f} per "
-                f"step, {self.jacobians} finite-difference Jacobians)")
+        return (f"implicit coupling: {self.trials} trial steps in {self.steps} communication steps ({per:.2f} per "
+                f"step, {self.jacobians} finite-difference Jacobians; rolled-back steps and a second run included)")
 
 
 class NotConverged(SimulationError):

@@ -323,6 +323,8 @@ class Simulation:
             orders = self._settle_orders(stepper, plan, orders, coupling_order, t0, implicit)
             if implicit:
                 stepper.implicit = self._implicit(stepper, plan)
+                if steppers[:-1] and steppers[0].implicit is not None:      # a second run: count both
+                    stepper.implicit.statistics = steppers[0].implicit.statistics
                 result.implicit = stepper.implicit.statistics
             first_step = h if tolerance is None else min(h, max_step)
             if stepper.derivatives is not None:

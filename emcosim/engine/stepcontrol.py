@@ -229,6 +229,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
         row = main.row()
         result.append(t0, row)
         scale = [abs(v) for v in row]
+        largest = [0.0] * len(row)                       # largest absolute estimate of each variable
         while t < t_stop:
             H = min(SUBSTEPS * h, t_stop - t)
             last = t_stop - (t + H) <= 0.1 * H
@@ -281,22 +282,23 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                 s.freeFMUstate(st)
             far = shadow.row()
             estimate = 0.0
+            near += worst * (tt - t)
+            far_sum += far_worst * (tt - t)
+            richardson = max(SUBSTEPS ** p, far_sum / near if near > 0 else 0.0) - 1
             for i, (a, b) in enumerate(zip(rows[-1][1], far)):
                 for _, r in rows:
                     if abs(r[i]) > scale[i]:
                         scale[i] = abs(r[i])
+                if abs(a - b) / richardson > largest[i]:
+                    largest[i] = abs(a - b) / richardson
                 if scale[i] > 0:
                     estimate = max(estimate, abs(a - b) / scale[i])
-            near += worst * (tt - t)
-            far_sum += far_worst * (tt - t)
-            richardson = max(SUBSTEPS ** p, far_sum / near if near > 0 else 0.0) - 1
             estimate /= richardson
             for tr, r in rows:
                 result.append(tr, r)
             report.accepted += SUBSTEPS
             report.h_min = min(report.h_min, H / SUBSTEPS)
             report.h_max = max(report.h_max, H / SUBSTEPS)
-            report.estimated_error = max(report.estimated_error, estimate)
             spent += eps * (tt - t)
             calibration = max(calibration, estimate * (tt - t0) / spent)
             if calibration > 0:
@@ -317,6 +319,10 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
         raise
     report.level = eps
     report.held = capped / macro if macro else 0.0
+    # the norm of the run (module docstring): each variable's largest error over its largest magnitude
+    # over the whole run (during the run only the magnitudes seen so far are known: `estimate` above,
+    # which calibrates eps, is larger early on)
+    report.estimated_error = max((e / s for e, s in zip(largest, scale) if s > 0), default=0.0)
     E = report.estimated_error
     if level is None and calibration > 0 and (E > HIGH * tolerance or (E < LOW * tolerance and report.held < 0.9)):
         report.next_level = aim / calibration

@@ -112,12 +112,13 @@ def _parser() -> argparse.ArgumentParser:
                           "value over a step (zero-order hold), K >= 1 passes the derivatives 1..K [unit of the "
                           "value per s^k] so the input follows a polynomial of degree K. Default: as many as both "
                           "ends of a connection declare (maxOutputDerivativeOrder, canInterpolateInputs), plus one "
-                          "estimated by backward difference where the target takes it")
+                          "estimated by backward difference where the target takes it. Explicit coupling only: "
+                          "with it, a scenario whose default is implicit runs explicitly")
     run.add_argument("--coupling", choices=("explicit", "implicit"),
                      help="explicit: the inputs follow polynomials from their sources' derivatives at the start "
                           "of each step; implicit: each step is repeated (FMU-state rollback) until the inputs "
                           "of the FMUs with states agree with their sources at its end, stable on stiff loops at "
-                          "any step (second order; the run prints the trial steps). Default: the scenario's "
+                          "any step (third order; second where a source gives no derivatives; the run prints the trial steps). Default: the scenario's "
                           "(its emcosim:Coupling annotation; `emcosim info` shows it), else explicit")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
@@ -261,9 +262,9 @@ def cmd_run(args) -> int:
     if args.max_step is not None and args.tolerance is None:
         raise ScenarioError("--max-step bounds the steps that --tolerance chooses; without --tolerance the "
                             "steps are fixed: use --step-size")
-    if args.coupling == "implicit" and args.coupling_order not in (None, 0):
+    if args.coupling == "implicit" and args.coupling_order is not None:
         raise ScenarioError(f"--coupling-order {args.coupling_order} sets the derivatives of explicit coupling; "
-                            "--coupling implicit passes none (its inputs follow the chord of each step)")
+                            "--coupling implicit passes none (it sets its inputs' polynomials itself, from the end of each step)")
     implicit = None if args.coupling is None else args.coupling == "implicit"
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}

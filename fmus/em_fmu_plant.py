@@ -22,7 +22,7 @@ from .components.plant_step import DEFAULT_RTOL, RTOL_RANGE, PlantStepper, StepF
 from .em_fmu_framework import EMSlave
 
 STATE_NAMES = ("q", "p", "x_e")
-OUTPUT_INDEX = {"q": 0, "p": 1, "x_e": 2, "H": 3}              # output -> its entry in time_derivatives' rows
+OUTPUT_INDEX = {n: i for i, n in enumerate((*STATE_NAMES, "H"))}   # output -> its entry in time_derivatives' rows
 
 
 class PlantSlave(EMSlave):
@@ -149,11 +149,14 @@ class PlantSlave(EMSlave):
         (the value and rate the master set, else the end of the last step's polynomial), computed once
         per state and input."""
         u, du = self.u_end if self.u_end is not None else (self.values["u"], self.input_rates()[0])
-        stepper = self.stepper
-        key = (self.state(), u, du, stepper)                    # before initialization: the parameters' own
+        if self.stepper is None:                                # before initialization: parameters may change
+            return self._rows(PlantStepper(self.make_plant(), self.values["rtol"]), self.state(), u, du)
+        key = (self.state(), u, du)
         if self._rates is None or self._rates[0] != key:
-            if stepper is None:
-                stepper = PlantStepper(self.make_plant(), self.values["rtol"])
-            first, second, H1, H2 = stepper.time_derivatives(*key[0], u, du)
-            self._rates = (key, (None, (*first, H1), (*second, H2)))      # indexed by the order
+            self._rates = (key, self._rows(self.stepper, *key))
         return self._rates[1]
+
+    @staticmethod
+    def _rows(stepper: PlantStepper, eta, u: float, du: float) -> tuple:
+        first, second, H1, H2 = stepper.time_derivatives(*eta, u, du)
+        return (None, (*first, H1), (*second, H2))                # indexed by the order

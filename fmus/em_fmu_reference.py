@@ -29,8 +29,6 @@ class ReferenceSlave(EMSlave):
         for i, (name, unit, description) in enumerate(OUTPUTS):
             self.output(name, unit, description, (lambda i=i: self.jet()[i]), [], all_parameters)
         self.reference = None
-        self._jet_time = None
-        self._jet = None
         self._derivatives_time = None
         self._derivatives: tuple[float, ...] = ()
 
@@ -43,14 +41,11 @@ class ReferenceSlave(EMSlave):
 
     def initialize(self) -> None:
         self.reference = self.make_reference()
-        self._jet_time = self._derivatives_time = None
+        self._derivatives_time = None
 
     def jet(self) -> tuple[float, float, float, float]:
-        if self._jet_time != self.time or self.reference is None:
-            reference = self.reference if self.reference is not None else self.make_reference()
-            self._jet = tuple(map(float, reference.values(self.time)))
-            self._jet_time = self.time if self.reference is not None else None
-        return self._jet
+        """(q*, q*', q*'', q*''') at the current communication point: the first entries of `all_derivatives`."""
+        return tuple(map(float, self.all_derivatives(3)[:4]))
 
     def step(self, t: float, h: float) -> bool:
         return True
@@ -58,7 +53,7 @@ class ReferenceSlave(EMSlave):
     # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
     def output_derivative(self, name: str, order: int) -> float:
         """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order)."""
-        return self.all_derivatives(OUTPUT_INDEX[name] + order)[OUTPUT_INDEX[name] + order]
+        return self.output_derivatives([(name, order)])[0]
 
     def output_derivatives(self, requests: list[tuple[str, int]]) -> list[float]:
         """`output_derivative` for every (name, order) of a request, from one `all_derivatives`: a master

@@ -85,7 +85,9 @@ def test_plant_derivatives_and_energy_follow_u_its_rate_parameters_and_restored_
     slave.set(u=0.9)
     assert got() == pytest.approx(expected({}, eta0, 0.9, 0.0), rel=1e-14)
     assert slave.get("H")[0] == pytest.approx(plant0.H(np.array(eta0)), rel=1e-15)
-    slave.set(k=0.7, q_0=0.0021)                                       # before initialization: parameters
+    slave.set(k=0.7)                                                   # before initialization: a parameter alone
+    assert got() == pytest.approx(expected({"k": 0.7}, eta0, 0.9, 0.0), rel=1e-14)
+    slave.set(q_0=0.0021)                                              # and the initial state
     eta1 = [0.0021] + list(eta0[1:])
     assert slave.get("q", "p", "x_e") == eta1
     assert got() == pytest.approx(expected({"k": 0.7}, eta1, 0.9, 0.0), rel=1e-14)

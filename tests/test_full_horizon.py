@@ -8,7 +8,7 @@ rtol 1e-9, Hermite-interpolated at the run's own communication points):
   controller could avoid: docs/scenarios.md, "Steps that keep a tolerance").
 
 mems_regulation_Dd-1 and mems_tracking_Dd-0.4 run with implicit coupling (their scenarios' default:
-explicit coupling of their stiff loops is stable only at steps of about 1e-6 s).
+explicit coupling of their stiff loops needed steps of 4e-6 s and 1e-6 s).
 
 Cost (docs/scenarios.md gives the measured numbers): each scenario's reference and runs go to one
 of two worker processes."""

@@ -105,7 +105,8 @@ def test_a_non_finite_derivative_ends_the_run_naming_it(make, tmp_path, toleranc
     out = tmp_path / "r.csv"
     with pytest.raises(SimulationError) as failure:
         with ResultFile(out) as sink:
-            simulate(s, tolerance=tolerance, coupling_order=1, max_step=0.1, record=["plant.x"], sink=sink)
+            simulate(s, tolerance=tolerance, coupling_order=1, max_step=0.1 if tolerance else None, record=["plant.x"],
+                     sink=sink)
     message = str(failure.value)
     assert "derivative of order 1 of plant.x = nan at t = " in message, message
     t_fail = float(message.split("at t = ")[1].split(" s")[0])
@@ -130,3 +131,12 @@ def test_rejected_steps_never_reach_the_sink(make, tmp_path):
     assert np.all(np.diff(data["time"]) > 0) and data["time"][0] == 0.0 and data["time"][-1] == 2.0
     assert len(data["time"]) == len(r) <= r.step_control.accepted + 1
     assert np.max(np.abs(data["plant.x"] - np.exp(-data["time"]))) <= 3e-4
+
+
+def test_a_maximum_step_without_a_tolerance_is_refused(make):
+    """The API as the CLI: max_step bounds the steps a tolerance chooses; alone it would be ignored."""
+    from emcosim.engine.errors import ScenarioError
+    s = make([("plant", "dynamic", DYNAMIC, True, 3), ("ctrl", "static", STATIC, True, 3)],
+             [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")], {"ctrl": {"k1": -1.0}}, 0.1, 0.01)
+    with pytest.raises(ScenarioError, match="a maximum step bounds the steps that a tolerance chooses"):
+        simulate(s, max_step=0.05)

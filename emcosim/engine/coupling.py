@@ -209,7 +209,7 @@ class _Extrapolation:
         for i, s in enumerate(self.transfer.slots):
             values[s] = out[i]
         history.append((t, now, estimate if history else None, hold, extrapolated))
-        del history[:-2]
+        del history[:-3]                    # a rollback over two substeps (stepcontrol) leaves the point before
 
 
 class _Guard:
@@ -286,7 +286,7 @@ class _Guard:
         else:
             new_hold, new_poly = [0.0] * len(now), [0.0] * len(now)
         history.append((t, now, derived, new_hold, new_poly))
-        del history[:-2]
+        del history[:-3]                            # a rollback over two substeps leaves the point before
 
 
 @dataclass

@@ -48,7 +48,7 @@ import numpy as np
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2FMUstate
 
-from .coupling import DerivativeTransfer, capabilities
+from .coupling import DerivativeTransfer, NonFiniteDerivative, capabilities
 from .errors import ScenarioError, SimulationError
 
 ITERATION_TOL = 1e-6    # fixed steps: the end values agree to this fraction of the inputs' scale
@@ -224,7 +224,7 @@ class Implicit:
         try:
             r = self._trial(t, h, u0, z, states)
         except SimulationError:                        # an FMU refused the extrapolated inputs: hold them
-            z = list(u0) + list(d0)
+            z = list(u0) + [0.0] * len(d0)
             r = self._trial(t, h, u0, z, states)
         trials, fresh = 1, False
         while not self._converged(r, z, h):
@@ -245,14 +245,14 @@ class Implicit:
                 try:
                     r_new = self._trial(t, h, u0, z_new, states)
                     error_new = self._error(r_new, z_new, h)
-                except SimulationError:                # an FMU refused the trial (e.g. left its domain)
-                    r_new, error_new = None, math.inf
+                except SimulationError as exc:         # an FMU refused the trial (e.g. left its domain)
+                    r_new, error_new, refused = None, math.inf, exc
                 if error_new < error or trials >= MAX_TRIALS:
                     break
                 dz = [0.5 * v for v in dz]
             if r_new is None:
-                raise NotConverged(f"implicit coupling: every trial of the step from t = {t:.9g} s over h = {h:.3g} s "
-                                   "near the last one failed in an FMU: take a shorter step")
+                raise NotConverged(f"implicit coupling: the trials of the step from t = {t:.9g} s over h = {h:.3g} s "
+                                   f"near the last one failed ({refused}): take a shorter step")
             if error_new < error:
                 self._broyden([a - b for a, b in zip(z_new, z)], [a - b for a, b in zip(r_new, r)])
             if error_new > STALL * error and not fresh:
@@ -331,7 +331,7 @@ class Implicit:
         stepper.step_some(t, h, self.rolled if self._once_done else self.rolled + self.once)
         self._once_done = True
         stepper.t = t + h
-        stepper.resolve(with_derivatives=self.mode == "hermite")
+        stepper.resolve(with_derivatives=stepper.derivatives is not None)   # every FMU's, for the next step
         slots = stepper.slots
         r = [slots[s] - zi for s, zi in zip(self.slots, z)]
         if self.mode == "hermite":
@@ -351,12 +351,12 @@ class Implicit:
     def _call(self, transfer: DerivativeTransfer, t: float) -> None:
         try:
             transfer()
-        except Exception as exc:               # noqa: BLE001 - fmi2Error, or a polynomial that is not finite
-            if self.mode == "hermite" and isinstance(exc, FMICallException):
+        except NonFiniteDerivative as exc:
+            raise SimulationError(f"implicit coupling: {exc.message(t)}") from None
+        except FMICallException as exc:
+            if self.mode == "hermite":
                 raise _Refused() from None
-            inst = transfer.inst
-            raise SimulationError(f"implicit coupling: {inst.path.name} (component '{inst.name}') refused the "
-                                  f"input polynomial at t = {t:.9g} s: {exc}") from None
+            self.stepper.failed(transfer, exc)
 
     def _error(self, r: list[float], z: list[float], h: float) -> float:
         """The residual's effect on the inputs over the step, relative to their scale: |r_c| for an end

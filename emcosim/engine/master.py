@@ -180,7 +180,8 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         hold everywhere, k to use at most k.
     implicit: iterate every communication step until the inputs of the FMUs with states agree with
         their sources at its end (implicit.py: stable on stiff loops at any step, third order;
-        `result.implicit` gives the trial steps); takes no coupling_order (the inputs follow chords).
+        `result.implicit` gives the trial steps); takes no coupling_order (it sets the inputs' polynomials
+        itself: Hermite parabolas, chords where a source gives no derivatives).
         None (default): the scenario's choice (its emcosim:Coupling annotation), explicit if it makes
         none or if a coupling_order is given.
     timing: if a dict is given, the master fills in the wall time of the run ('total', from
@@ -297,6 +298,9 @@ class Simulation:
                                     "polynomials itself (from the sources' values and first derivatives at the end "
                                     "of each step); give one or the other")
             coupling_order = 1                        # the sources' first derivatives, for the Hermite polynomial
+        if max_step is not None and tolerance is None:
+            raise ScenarioError("a maximum step bounds the steps that a tolerance chooses; without a tolerance the "
+                                "steps are fixed: give the step size")
         if tolerance is not None:
             stepcontrol.check_tolerance(tolerance)
             max_step = (t_stop - t0) / 50 if max_step is None else max_step
@@ -396,7 +400,7 @@ class Simulation:
                 break
             transfer, exc = failure
             if not retry:
-                stepper._failed(transfer, exc)
+                stepper.failed(transfer, exc)
             k = max(transfer.order)
             self._accepted[transfer.inst.name] = k - 1
             messages = transfer.inst.messages
@@ -845,7 +849,7 @@ class _Stepper:
                 for i, s in enumerate(transfer.slots):
                     slots[s] = values[i]
         except FMICallException as exc:
-            self._failed(transfer, exc)
+            self.failed(transfer, exc)
         except NonFiniteValue as exc:
             raise SimulationError(exc.message(self.t)) from None
         if self.derivatives is not None and with_derivatives:
@@ -861,9 +865,9 @@ class _Stepper:
 
     def _check_failure(self, failure) -> None:
         if failure is not None:
-            self._failed(*failure)
+            self.failed(*failure)
 
-    def _failed(self, transfer, exc: FMICallException):
+    def failed(self, transfer, exc: FMICallException):
         inst = transfer.inst
         raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in {exc.function} "
                               f"at t = {self.t:.9g} s{_last_message(inst)}") from None
@@ -949,7 +953,7 @@ class _Stepper:
             try:
                 transfer()
             except FMICallException as exc:
-                self._failed(transfer, exc)
+                self.failed(transfer, exc)
             except NonFiniteValue as exc:
                 raise SimulationError(exc.message(self.t)) from None
         return set_values

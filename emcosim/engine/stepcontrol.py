@@ -176,20 +176,22 @@ def check_rollback(stepper, t0: float, h: float) -> None:
     states = [s.getFMUstate() for s in slaves]
     rows = []
     implicit, stepper.implicit = stepper.implicit, None     # the FMUs' rollback only (an iteration's
-    for _ in range(2):                                        # Jacobian would differ between the two)
-        stepper.t = t0
-        stepper.resolve()
-        stepper.step(t0, h)
-        stepper.t = t0 + h
-        stepper.resolve()
-        rows.append(stepper.row())
+    try:                                                      # Jacobian would differ between the two)
+        for _ in range(2):
+            stepper.t = t0
+            stepper.resolve()
+            stepper.step(t0, h)
+            stepper.t = t0 + h
+            stepper.resolve()
+            rows.append(stepper.row())
+            for s, st in zip(slaves, states):
+                s.setFMUstate(st)
+    finally:
         for s, st in zip(slaves, states):
-            s.setFMUstate(st)
-    for s, st in zip(slaves, states):
-        s.freeFMUstate(st)
+            s.freeFMUstate(st)
+        stepper.implicit = implicit
     stepper.t = t0
     stepper.n_steps -= 2
-    stepper.implicit = implicit
     if rows[0] != rows[1]:
         bad = [c for c, a, b in zip(stepper.plan.columns, *rows) if a != b]
         raise ScenarioError(f"error-controlled steps need FMU-state rollback, but repeating a restored step "
@@ -239,6 +241,8 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
             for copy in (main, shadow):
                 if copy.implicit is not None:               # the inputs agree to a tenth of the defect level
                     copy.implicit.tolerance = max(ITERATION * eps, implicit.ITERATION_FLOOR)
+            if main.implicit is not None:                  # chords after a target refused order 2
+                p = main.implicit.degree + 1
             rows, worst, tt = [], 0.0, t
             try:
                 for j in range(SUBSTEPS):

@@ -14,7 +14,7 @@ from emcosim.engine.errors import ScenarioError, SimulationError
 from emcosim.engine.master import Simulation, simulate
 from emcosim.engine.ssd import read_scenario, system_structure_xml
 from tests.test_coupling import DYNAMIC, STATIC, loop, make, toy_library  # noqa: F401 - fixtures
-from tests.test_scenarios import ROOT, references  # noqa: F401 - fixture
+from tests.test_scenarios import ROOT, TIGHT, references  # noqa: F401 - fixture
 
 
 def radau(z: float) -> float:
@@ -92,7 +92,7 @@ def test_mems_converges_at_third_order_where_explicit_coupling_is_unstable(fmu_d
     errors = []
     with Simulation(s) as sim:
         for h in (4e-5, 2e-5, 1e-5):
-            r = sim.run(step_size=h, record=["plant.q"])
+            r = sim.run(step_size=h, record=["plant.q"], start_values=TIGHT)
             assert r.implicit is not None
             errors.append(position_error(r.time, r["plant.q"], ref, 1.0))
         explicit = sim.run(step_size=2e-5, record=["plant.q"], implicit=False)
@@ -101,9 +101,25 @@ def test_mems_converges_at_third_order_where_explicit_coupling_is_unstable(fmu_d
     assert position_error(explicit.time, explicit["plant.q"], ref, 1.0) > 10 * errors[1]
 
 
-def test_a_step_that_does_not_converge_ends_the_run_clearly(fmu_dir):
+def test_a_step_that_does_not_converge_is_halved(fmu_dir, references):
     """mems_tracking_Dd-0.4 at 20 us: the first step (the electrical layer of the charging capacitor)
-    does not converge; the run ends with what to do, and keeps its first row."""
+    does not converge and is retried as halves (every FMU rolled back, the reference and the static
+    controller included); the rows stay on the 20 us grid and follow the monolithic closed loop."""
+    from emcosim.paper.reference_check import position_error, position_scale, samples_for
+    s = read_scenario(ROOT / "scenarios" / "mems_tracking_Dd-0.4", fmu_dir=fmu_dir)
+    r = simulate(s, stop_time=2e-4, step_size=2e-5, record=["plant.q"])
+    assert r.implicit.halved >= 1
+    assert r.implicit.steps > 10                              # the halves are steps of the iteration
+    np.testing.assert_allclose(r.time, np.arange(11) * 2e-5, rtol=0, atol=1e-15)
+    ref = references(s, 2e-4, samples_for(2e-4, 2e-5, 2001))
+    assert position_error(r.time, r["plant.q"], ref, position_scale(s)) < 1e-3
+    assert "did not converge and were taken as two halves" in r.implicit.summary()
+
+
+def test_a_step_that_does_not_converge_after_its_halvings_ends_the_run_clearly(fmu_dir, monkeypatch):
+    """Without halvings (or past the last) the run ends with what to do, and keeps its first row."""
+    from emcosim.engine import implicit
+    monkeypatch.setattr(implicit, "MAX_HALVINGS", 0)
     s = read_scenario(ROOT / "scenarios" / "mems_tracking_Dd-0.4", fmu_dir=fmu_dir)
     with pytest.raises(SimulationError, match="did not agree within .* take a shorter step") as info:
         simulate(s, stop_time=1e-4, step_size=2e-5, record=["plant.q"])
@@ -125,3 +141,19 @@ def test_the_scenario_annotation_sets_the_default(make, tmp_path):
     (folder / "SystemStructure.ssd").write_text(text.replace('method="implicit"', 'method="iterative"'))
     with pytest.raises(ScenarioError, match='method="iterative" must be one of explicit, implicit'):
         read_scenario(folder)
+
+
+def test_error_controlled_steps_recur_and_keep_their_jacobians(fmu_dir):
+    """maglev_tracking_D-1_R0.82 with --tolerance 1e-3, coupled implicitly: the steps lie on the rungs
+    h_max / 2^(k/4) (but the last macro step, stretched to the stop time), so sizes recur, and a size
+    met before takes its kept Jacobian: fewer finite-difference Jacobians than twice the number of
+    sizes (measured: 29 for 21 sizes; 81 when none is kept)."""
+    from emcosim.engine import stepcontrol
+    s = read_scenario(ROOT / "scenarios" / "maglev_tracking_D-1_R0.82", fmu_dir=fmu_dir)
+    r = simulate(s, record=["plant.q"], tolerance=1e-3, implicit=True)
+    h_max = (s.stop_time - s.start_time) / 50
+    rungs = np.log(h_max / np.diff(r.time)) / np.log(stepcontrol.RUNG)
+    off = np.flatnonzero(np.abs(rungs - np.round(rungs)) > 1e-6)
+    assert len(off) <= 2 and np.all(off >= len(rungs) - 2), (off, rungs[off])
+    sizes = len(np.unique(np.round(rungs[:-2])))
+    assert r.implicit.jacobians < 2 * sizes, (r.implicit, sizes)

@@ -24,15 +24,19 @@ value u_n at t_n and by what its source gives at the END of the step, after the 
 The unknowns z = (c, d) (or c) solve r(z) = G(z) - z = 0, G being what the master reads at t_n + h
 after the step made with z. Newton's method with an approximate Jacobian of r: finite differences
 (one more trial step per unknown) when none is known yet or the iteration stalls, Broyden's rank-one
-update after every trial, kept from step to step. The first trial extrapolates z from the points
+update after every trial, kept from step to step and, for the last JACOBIANS_KEPT step sizes, per size
+(the Jacobian changes with the step; error-controlled steps return to sizes met before). The first trial extrapolates z from the points
 before (a parabola through the last values, a line through the last derivatives). A trial rolls the
 FMUs with implicit inputs back to their state at t_n (fmi2SetFMUstate), sets the polynomial (fmi2Set-
 RealInputDerivatives), steps them again and resolves the values (and derivatives) at t_n + h; FMUs
 without implicit inputs (static controllers, sources) step once and get the new inputs at t_n + h (FMI
 2.0 lets a master set inputs and get outputs again at the same communication point). The step ends
 when the residual's effect on the inputs is below the iteration tolerance, a fraction of their scale
-(the largest magnitude seen). A step that has not converged after MAX_TRIALS trials ends the run
-(error-controlled steps: it is retried shorter). `deviation` measures the coupling's own error of a
+(the largest magnitude seen). A step that has not converged after MAX_TRIALS trials is retried as two
+halves (every FMU rolled back; fixed-step runs, down to h / 2^MAX_HALVINGS; the communication points
+and the rows of the result stay those of the fixed step; `Statistics.halved` counts them): a fast
+transient (a charging layer at the start) then costs short steps where it lives, not over the whole
+run. Past that, or in error-controlled runs (the step control retries shorter itself), it ends the run. `deviation` measures the coupling's own error of a
 step for the step control.
 
 Nothing here knows the models: any FMU with canGetAndSetFMUstate takes part.
@@ -58,7 +62,9 @@ MAX_TRIALS = 16         # trial steps per communication step (the first included
 BACKTRACK = 3           # halvings of a Newton step that makes the residual larger
 STALL = 0.5             # a trial that does not shrink the residual below this factor renews the Jacobian
 JACOBIAN_RANGE = 1.25   # a Jacobian serves steps within this factor of the one it was taken at
+JACOBIANS_KEPT = 8      # Jacobians kept for the step sizes met before (error-controlled steps return to them)
 PERTURBATION = 1e-6     # finite-difference perturbation, relative to the input's scale
+MAX_HALVINGS = 12       # fixed-step runs: a step that does not converge is retried as halves, to h / 4096
 
 
 @dataclass
@@ -68,11 +74,14 @@ class Statistics:
     steps: int = 0          # communication steps
     trials: int = 0         # trial steps (>= steps)
     jacobians: int = 0      # finite-difference Jacobians
+    halved: int = 0         # steps that did not converge and were retried as two halves (counted in steps)
 
     def summary(self) -> str:
         per = self.trials / self.steps if self.steps else 0.0
-        return (f"implicit coupling: {self.trials} trial steps in {self.steps} communication steps ({per:.2f} per "
-                f"step, {self.jacobians} finite-difference Jacobians; rolled-back steps and a second run included)")
+        halved = (f"; {self.halved} steps did not converge and were taken as two halves, counted as steps"
+                  if self.halved else "")
+        return (f"implicit coupling: {self.trials} trial steps in {self.steps} steps ({per:.2f} per step, "
+                f"{self.jacobians} finite-difference Jacobians{halved}; rolled-back steps and a second run included)")
 
 
 class NotConverged(SimulationError):
@@ -154,7 +163,8 @@ class Implicit:
     for the Hermite polynomial (None: chords); tolerance: the iteration tolerance."""
 
     def __init__(self, stepper, connections, value_slot: dict[str, int],
-                 derivative_slot: dict[str, int] | None = None, tolerance: float = ITERATION_TOL):
+                 derivative_slot: dict[str, int] | None = None, tolerance: float = ITERATION_TOL,
+                 halvings: int = MAX_HALVINGS):
         self.stepper = stepper
         self.tolerance = tolerance
         self.inputs = [c.end for c in connections]
@@ -179,10 +189,15 @@ class Implicit:
         self.rolled = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name in rolled]
         self.states = _States([inst for inst, _, _ in self.rolled])
         self.once = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name not in rolled]
+        # halving a step rolls back the FMUs stepped once too: only where each of them can
+        once_can = all(inst.model_description.coSimulation.canGetAndSetFMUstate for inst, _, _ in self.once)
+        self.halvings = halvings if once_can else 0
+        self.once_states = _States([inst for inst, _, _ in self.once])
         self.n = len(self.inputs)
         self.scale = [0.0] * (2 * self.n)       # values, then derivatives
         self.jacobian: np.ndarray | None = None
-        self.jacobian_step = 0.0                # the step it was computed for (it scales with the step)
+        self.jacobian_step = 0.0                # the step it was computed for (it changes with the step)
+        self.kept: dict[float, np.ndarray] = {}   # step -> the latest Jacobian for it (oldest first)
         self.history: list[tuple[float, list[float], list[float]]] = []   # (t, values, derivatives) before
         self.statistics = Statistics()
 
@@ -192,27 +207,48 @@ class Implicit:
         return {"hermite": 2, "chord": 1, "hold": 0}[self.mode]
 
     # ---- one communication step -----------------------------------------------------------------
-    def step(self, t: float, h: float) -> None:
+    def step(self, t: float, h: float, halvings: int | None = None) -> None:
         """Step every FMU from t to t + h, the implicit inputs on their converged polynomials;
-        afterwards the values (and, Hermite, the derivatives) at t + h are resolved."""
+        afterwards the values (and, Hermite, the derivatives) at t + h are resolved. A step that does
+        not converge is retried as two halves, at most `halvings` times nested (default: self.halvings)."""
+        halvings = self.halvings if halvings is None else halvings
+        states = self.states.save(t)
+        once = self.once_states.save(t) if halvings else None
+        try:
+            try:
+                self._step(t, h, states)
+                return
+            except NotConverged:
+                if not halvings:
+                    raise
+            self.states.restore(states, t)         # every FMU back at t, its values resolved again
+            self.once_states.restore(once, t)
+        finally:
+            self.states.free(states)
+            if once is not None:
+                self.once_states.free(once)
+        self.statistics.halved += 1
+        self.jacobian = None
+        stepper = self.stepper
+        stepper.t = t
+        stepper.resolve(with_derivatives=stepper.derivatives is not None)
+        self.step(t, h / 2, halvings - 1)
+        self.step(t + h / 2, h / 2, halvings - 1)
+
+    def _step(self, t: float, h: float, states: list) -> None:
         stepper = self.stepper
         u0 = [stepper.slots[s] for s in self.slots]
         d0 = self.source_derivatives()
         for i, v in enumerate(u0 + d0):
             if abs(v) > self.scale[i]:
                 self.scale[i] = abs(v)
-        states = self.states.save(t)
         self._once_done = self._moved = False
         try:
-            try:
-                trials = self._iterate(t, h, u0, d0, states)
-            except _Refused:                       # the target takes order 1 only: chords from now on
-                self._chords_only()
-                trials = self._iterate(t, h, u0, [], states)
-        finally:
-            self.states.free(states)
+            self._iterate(t, h, u0, d0, states)
+        except _Refused:                           # the target takes order 1 only: chords from now on
+            self._chords_only()
+            self._iterate(t, h, u0, [], states)
         self.statistics.steps += 1
-        self.statistics.trials += trials
         history = self.history
         while history and history[-1][0] >= t:
             history.pop()
@@ -234,9 +270,10 @@ class Implicit:
                                    f"h = {h:.3g} s (residual {self._error(r, z, h):.2g} of their scale; tolerance "
                                    f"{self.tolerance:.2g}): take a shorter step")
             if self.jacobian is None or not 1 / JACOBIAN_RANGE <= h / self.jacobian_step <= JACOBIAN_RANGE:
-                self._finite_differences(t, h, u0, z, r, states)
-                trials += len(z)
-                fresh = True
+                if not self._recall(h):
+                    self._finite_differences(t, h, u0, z, r, states)
+                    trials += len(z)
+                    fresh = True
             dz = self._solve(r)
             error = self._error(r, z, h)
             for _ in range(BACKTRACK + 1):             # Newton's step, halved while it makes things worse
@@ -256,6 +293,7 @@ class Implicit:
             if error_new < error:
                 self._broyden([a - b for a, b in zip(z_new, z)], [a - b for a, b in zip(r_new, r)])
             if error_new > STALL * error and not fresh:
+                self.kept.pop(self.jacobian_step, None)
                 self.jacobian = None                   # renew it before the next trial
             fresh = False
             if error_new < error:
@@ -264,6 +302,7 @@ class Implicit:
 
     def _chords_only(self) -> None:
         self.mode, self.derivative_slots, self.jacobian = "chord", [], None
+        self.kept.clear()
         self.sets = [(DerivativeTransfer(t.inst, [e for e in t.entries if e[1] == 1], getter=False), idx)
                      for t, idx in self.sets]
 
@@ -314,6 +353,7 @@ class Implicit:
         if self._moved:                            # the FMUs are still at t before the first trial
             self.states.restore(states, t)
         self._moved = True
+        self.statistics.trials += 1
         for setter, idx in self.sets:
             if self.mode == "hold":
                 setter([z[i] for i in idx])
@@ -384,6 +424,7 @@ class Implicit:
             rj = self._trial(t, h, u0, zj, states)
             J[:, j] = [(a - b) / delta for a, b in zip(rj, r)]
         self.jacobian, self.jacobian_step = J, h
+        self._keep()
         self.statistics.jacobians += 1
 
     def _solve(self, r: list[float]) -> list[float]:
@@ -401,3 +442,27 @@ class Implicit:
         norm = float(dz_ @ dz_)
         if norm > 0 and math.isfinite(norm):
             self.jacobian = J + np.outer(dr_ - J @ dz_, dz_) / norm
+            self._keep()
+
+    def _keep(self) -> None:
+        kept = self.kept
+        kept.pop(self.jacobian_step, None)
+        kept[self.jacobian_step] = self.jacobian
+        while len(kept) > JACOBIANS_KEPT:
+            del kept[next(iter(kept))]
+
+    def _recall(self, h: float) -> bool:
+        """Take the kept Jacobian of the step nearest h, if within JACOBIAN_RANGE. The Jacobian
+        changes with the step in a way only the models know (measured on the maglev loop: its entries
+        grow from 0.4 at 25 ms to 600 at 1.5 s, the open-loop plant being unstable), but at the same
+        step it changes slowly along the run, and error-controlled steps return to sizes met before.
+        A recalled Jacobian that does not halve the residual is renewed (STALL)."""
+        best, distance = None, math.log(JACOBIAN_RANGE)
+        for step in self.kept:
+            d = abs(math.log(h / step))
+            if d <= distance:
+                best, distance = step, d
+        if best is None:
+            return False
+        self.jacobian, self.jacobian_step = self.kept[best], best
+        return True

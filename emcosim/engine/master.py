@@ -326,7 +326,7 @@ class Simulation:
             _initialize(self.scenario, self.instances, parameters, t0, t_stop, stepper, tolerance)
             orders = self._settle_orders(stepper, plan, orders, coupling_order, t0, implicit)
             if implicit:
-                stepper.implicit = self._implicit(stepper, plan)
+                stepper.implicit = self._implicit(stepper, plan, halve=tolerance is None)
                 if steppers[:-1] and steppers[0].implicit is not None:      # a second run: count both
                     stepper.implicit.statistics = steppers[0].implicit.statistics
                 result.implicit = stepper.implicit.statistics
@@ -412,15 +412,17 @@ class Simulation:
             stepper.reset_counters()
         return orders
 
-    def _implicit(self, stepper: "_Stepper", plan: Plan) -> implicit_.Implicit:
+    def _implicit(self, stepper: "_Stepper", plan: Plan, halve: bool = False) -> implicit_.Implicit:
         """Implicit coupling of the inputs of the FMUs with states: Hermite polynomials where every
-        source gives its first derivative (stepper's derivative plan), else chords."""
+        source gives its first derivative (stepper's derivative plan), else chords. halve: a step that
+        does not converge is retried as halves (fixed steps; the step control retries shorter itself)."""
         connections = implicit_.implicit_inputs(stepper.instances, self.connections, plan.dynamic)
         d = stepper.derivatives
         derivative_slot = None
         if d is not None and all(d.orders.get(c.end, 0) >= 1 for c in connections):
             derivative_slot = {c.end: (d.slot[(c.start, 1)], c.factor) for c in connections}
-        return implicit_.Implicit(stepper, connections, plan.slot, derivative_slot)
+        return implicit_.Implicit(stepper, connections, plan.slot, derivative_slot,
+                                  halvings=implicit_.MAX_HALVINGS if halve else 0)
 
     def _plan(self, record, instances) -> Plan:
         key = (None if record is None else tuple(record), instances is self._shadow)

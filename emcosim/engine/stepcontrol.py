@@ -60,6 +60,8 @@ STABLE_GROWTH = 1.02  # a step bound learnt from an unstable long step rises thi
 KEEP = 1.5            # implicit coupling: a step that could grow by less than this keeps its size (as
                       # stiff solvers keep h and their Jacobian, e.g. Radau5): a new size costs a new Jacobian
 ITERATION = 0.1       # implicit coupling: the inputs' residual at the end of a step, relative to eps
+RUNG = 2 ** 0.25      # implicit coupling: steps on the rungs h_max / RUNG^k, so that step sizes recur and
+                      # the iteration's Jacobians kept per size (implicit.py) serve them again
 
 
 @dataclass
@@ -233,6 +235,8 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
         scale = [abs(v) for v in row]
         largest = [0.0] * len(row)                       # largest absolute estimate of each variable
         while t < t_stop:
+            if main.implicit is not None:
+                h = h_max / RUNG ** math.ceil(math.log(h_max / h, RUNG) - 1e-9)
             H = min(SUBSTEPS * h, t_stop - t)
             last = t_stop - (t + H) <= 0.1 * H
             if last:

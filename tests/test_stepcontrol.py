@@ -3,6 +3,8 @@ FMUs (tests/toy_fmus.py): the loop x' = k x of ToyDynamic and ToyStatic, whose e
 e^{kt} is the independent truth. The paper scenarios' band test is in tests/test_scenarios.py."""
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 import pytest
 
@@ -140,3 +142,19 @@ def test_a_maximum_step_without_a_tolerance_is_refused(make):
              [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")], {"ctrl": {"k1": -1.0}}, 0.1, 0.01)
     with pytest.raises(ScenarioError, match="a maximum step bounds the steps that a tolerance chooses"):
         simulate(s, max_step=0.05)
+
+
+@pytest.mark.parametrize("tolerance, implicit", [(None, False), (1e-4, False), (1e-4, True)])
+def test_an_fmu_that_cannot_save_its_state_ends_the_run_clearly(make, tolerance, implicit):
+    """fmi2GetFMUstate answers fmi2Error (as an FMU with no memory left would): the run ends with a
+    SimulationError naming the FMU, the function, the time and what the state was for (here the
+    first point's trial of the input derivative orders), not an exception of the FMI layer
+    (engine/fmustate.py is the one way the master, the step control and implicit coupling save states)."""
+    from emcosim.engine.errors import SimulationError
+    with Simulation(loop(make, k=-3.0)) as sim:
+        sim.run(stop_time=0.02, tolerance=tolerance, record=["plant.x"], implicit=implicit)   # loaded, works
+        refuse = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p)(lambda component, state: 3)
+        sim.instances["plant"].slave._functions["fmi2GetFMUstate"] = refuse          # fmi2Error
+        with pytest.raises(SimulationError, match=r"ToyPlant\w*\.fmu: component 'plant' failed in fmi2GetFMUstate "
+                                                  r"at t = 0 s \(the master tries which input derivative orders"):
+            sim.run(tolerance=tolerance, record=["plant.x"], implicit=implicit)

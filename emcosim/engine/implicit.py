@@ -43,16 +43,15 @@ Nothing here knows the models: any FMU with canGetAndSetFMUstate takes part.
 """
 from __future__ import annotations
 
-import ctypes
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import fmi2FMUstate
 
 from .coupling import DerivativeTransfer, NonFiniteDerivative, capabilities
+from .fmustate import States
 from .errors import ScenarioError, SimulationError
 
 ITERATION_TOL = 1e-6    # fixed steps: the end values agree to this fraction of the inputs' scale
@@ -118,38 +117,6 @@ def deviation(mode: str, u_prev: float | None, h_prev: float, d_prev: float | No
     return abs(second) * h * h / 8.0
 
 
-class _States:
-    """fmi2GetFMUstate / fmi2SetFMUstate / fmi2FreeFMUstate of a list of FMUs, as raw ctypes calls (a
-    trial step restores the FMUs' states; fmpy's wrappers add a Python layer per call)."""
-
-    def __init__(self, instances: list):
-        self.instances = instances
-        self.calls = [(inst, inst.slave.component, inst.slave._functions["fmi2GetFMUstate"],
-                       inst.slave._functions["fmi2SetFMUstate"], inst.slave._functions["fmi2FreeFMUstate"])
-                      for inst in instances]
-
-    def save(self, t: float) -> list:
-        states = []
-        for inst, component, get, _, _ in self.calls:
-            state = fmi2FMUstate()
-            if get(component, ctypes.byref(state)) > 1:
-                self.free(states)
-                raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in fmi2GetFMUstate at "
-                                      f"t = {t:.9g} s (implicit coupling rolls it back)")
-            states.append(state)
-        return states
-
-    def restore(self, states: list, t: float) -> None:
-        for (inst, component, _, set_, _), state in zip(self.calls, states):
-            if set_(component, state) > 1:
-                raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in fmi2SetFMUstate at "
-                                      f"t = {t:.9g} s (implicit coupling rolls it back)")
-
-    def free(self, states: list) -> None:
-        for (_, component, _, _, free), state in zip(self.calls, states):
-            free(component, ctypes.byref(state))
-
-
 class _Refused(Exception):
     """The target refused the input derivative of order 2 (FMI 2.0 does not declare the orders taken)."""
 
@@ -187,12 +154,12 @@ class Implicit:
                 self.sets.append((DerivativeTransfer(inst, entries, getter=False), idx))
         rolled = set(by_target)
         self.rolled = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name in rolled]
-        self.states = _States([inst for inst, _, _ in self.rolled])
+        self.states = States([inst for inst, _, _ in self.rolled])
         self.once = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name not in rolled]
         # halving a step rolls back the FMUs stepped once too: only where each of them can
         once_can = all(inst.model_description.coSimulation.canGetAndSetFMUstate for inst, _, _ in self.once)
         self.halvings = halvings if once_can else 0
-        self.once_states = _States([inst for inst, _, _ in self.once])
+        self.once_states = States([inst for inst, _, _ in self.once])
         self.n = len(self.inputs)
         self.scale = [0.0] * (2 * self.n)       # values, then derivatives
         self.jacobian: np.ndarray | None = None

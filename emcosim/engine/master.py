@@ -44,6 +44,7 @@ from fmpy import calloc, free
 from . import coupling, dependencies, stepcontrol, tempdirs, units
 from . import implicit as implicit_                 # `implicit` is the run's flag
 from .errors import ScenarioError, SimulationError
+from .fmustate import States
 from .results import Result, ResultFile
 from .ssd import Scenario, extract_archive, parse_value
 
@@ -382,20 +383,21 @@ class Simulation:
         k - 1 from then on (`result.coupling_orders` gives the orders used; the FMU's refusal is not
         kept among its messages)."""
         while stepper.derivatives is not None:
-            slaves = [inst.slave for inst in self.instances.values()
-                      if inst.model_description.coSimulation.canGetAndSetFMUstate]
-            states = [s.getFMUstate() for s in slaves]
-            stepper.t = t0
-            stepper.resolve(with_derivatives=False)
-            failure = stepper.derivatives_resolve()
-            # a target that refuses an input derivative order k > 1 (and can be restored) is retried at k - 1
-            retry = failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
-                max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate
-            if retry:
-                for s, st in zip(slaves, states):
-                    s.setFMUstate(st)
-            for s, st in zip(slaves, states):
-                s.freeFMUstate(st)
+            fmus = States([inst for inst in self.instances.values()
+                           if inst.model_description.coSimulation.canGetAndSetFMUstate],
+                          "the master tries which input derivative orders the FMUs take")
+            states = fmus.save(t0)
+            try:
+                stepper.t = t0
+                stepper.resolve(with_derivatives=False)
+                failure = stepper.derivatives_resolve()
+                # a target that refuses an input derivative order k > 1 (and can be restored) is retried at k - 1
+                retry = failure is not None and failure[0].function == "fmi2SetRealInputDerivatives" and \
+                    max(failure[0].order) > 1 and failure[0].inst.model_description.coSimulation.canGetAndSetFMUstate
+                if retry:
+                    fmus.restore(states, t0)
+            finally:
+                fmus.free(states)
             if failure is None:
                 break
             transfer, exc = failure

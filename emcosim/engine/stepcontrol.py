@@ -48,6 +48,7 @@ from typing import Callable
 
 from . import implicit
 from .errors import ScenarioError, SimulationError
+from .fmustate import States
 
 AIM = 0.5             # aim of the global error, relative to the tolerance
 REJECT = 2.0          # a step with a defect above REJECT * eps is retried
@@ -174,8 +175,8 @@ class _Defect:
 def check_rollback(stepper, t0: float, h: float) -> None:
     """Step, restore the state, step again: both must give the same values, or an FMU does not
     really restore its state (e.g. an integrator state kept outside its registered variables)."""
-    slaves = [inst.slave for inst in stepper.order]
-    states = [s.getFMUstate() for s in slaves]
+    fmus = States(stepper.order, "the step control rolls it back")
+    states = fmus.save(t0)
     rows = []
     implicit, stepper.implicit = stepper.implicit, None     # the FMUs' rollback only (an iteration's
     try:                                                      # Jacobian would differ between the two)
@@ -186,11 +187,9 @@ def check_rollback(stepper, t0: float, h: float) -> None:
             stepper.t = t0 + h
             stepper.resolve()
             rows.append(stepper.row())
-            for s, st in zip(slaves, states):
-                s.setFMUstate(st)
+            fmus.restore(states, t0)
     finally:
-        for s, st in zip(slaves, states):
-            s.freeFMUstate(st)
+        fmus.free(states)
         stepper.implicit = implicit
     stepper.t = t0
     stepper.n_steps -= 2
@@ -221,7 +220,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
     calibration = 0.0
     spent = 0.0                                          # integral of the level eps over the run
     near = far_sum = 0.0                                 # integrals of the two copies' defects
-    slaves = [inst.slave for inst in main.order + shadow.order]
+    fmus = States(main.order + shadow.order, "a rejected step rolls it back")
     defect, far_defect = _Defect(main), _Defect(shadow)
     h = min(h0, h_max)
     h_stable = math.inf
@@ -241,7 +240,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
             last = t_stop - (t + H) <= 0.1 * H
             if last:
                 H = t_stop - t
-            states = [s.getFMUstate() for s in slaves]
+            states = fmus.save(t)
             for copy in (main, shadow):
                 if copy.implicit is not None:               # the inputs agree to a tenth of the defect level
                     copy.implicit.tolerance = max(ITERATION * eps, implicit.ITERATION_FLOOR)
@@ -273,9 +272,8 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                 # a defect too large, or an FMU that failed on the long step: roll back, shorter
                 if isinstance(why, SimulationError) and H <= 1e-9 * max(1.0, abs(t)):
                     raise
-                for s, st in zip(slaves, states):
-                    s.setFMUstate(st)
-                    s.freeFMUstate(st)
+                fmus.restore(states, t)
+                fmus.free(states)
                 for copy in (main, shadow):
                     copy.t = t
                     copy.resolve()
@@ -286,8 +284,7 @@ def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: fl
                     h_stable = h                         # a bound learnt from the failure, raised slowly
                     # (implicit coupling has no stability limit: its step grows back at once)
                 continue
-            for s, st in zip(slaves, states):
-                s.freeFMUstate(st)
+            fmus.free(states)
             far = shadow.row()
             estimate = 0.0
             near += worst * (tt - t)

@@ -24,20 +24,21 @@ value u_n at t_n and by what its source gives at the END of the step, after the 
 The unknowns z = (c, d) (or c) solve r(z) = G(z) - z = 0, G being what the master reads at t_n + h
 after the step made with z. Newton's method with an approximate Jacobian of r: finite differences
 (one more trial step per unknown) when none is known yet or the iteration stalls, Broyden's rank-one
-update after every trial, kept from step to step and, for the last JACOBIANS_KEPT step sizes, per size
-(the Jacobian changes with the step; error-controlled steps return to sizes met before). The first trial extrapolates z from the points
-before (a parabola through the last values, a line through the last derivatives). A trial rolls the
-FMUs with implicit inputs back to their state at t_n (fmi2SetFMUstate), sets the polynomial (fmi2Set-
-RealInputDerivatives), steps them again and resolves the values (and derivatives) at t_n + h; FMUs
-without implicit inputs (static controllers, sources) step once and get the new inputs at t_n + h (FMI
-2.0 lets a master set inputs and get outputs again at the same communication point). The step ends
-when the residual's effect on the inputs is below the iteration tolerance, a fraction of their scale
-(the largest magnitude seen). A step that has not converged after MAX_TRIALS trials is retried as two
-halves (every FMU rolled back; fixed-step runs, down to h / 2^MAX_HALVINGS; the communication points
-and the rows of the result stay those of the fixed step; `Statistics.halved` counts them): a fast
-transient (a charging layer at the start) then costs short steps where it lives, not over the whole
-run. Past that, or in error-controlled runs (the step control retries shorter itself), it ends the run. `deviation` measures the coupling's own error of a
-step for the step control.
+update after every trial, kept from step to step and, for the last JACOBIANS_KEPT step sizes, per
+size (the Jacobian changes with the step; error-controlled steps return to sizes met before). The
+first trial extrapolates z from the points before (a parabola through the last values, a line
+through the last derivatives). A trial rolls the FMUs with implicit inputs back to their state at
+t_n (fmi2SetFMUstate), sets the polynomial (fmi2SetRealInputDerivatives), steps them again and
+resolves the values (and derivatives) at t_n + h; FMUs without implicit inputs (static controllers,
+sources) step once and get the new inputs at t_n + h (FMI 2.0 lets a master set inputs and get
+outputs again at the same communication point). The step ends when the residual's effect on the
+inputs is below the iteration tolerance, a fraction of their scale (the largest magnitude seen).
+A step that has not converged after MAX_TRIALS trials is retried as two halves (every FMU rolled
+back; fixed-step runs, down to h / 2^MAX_HALVINGS; the communication points and the rows of the
+result stay those of the fixed step; `Statistics.halved` counts them): a fast transient (a charging
+layer at the start) then costs short steps where it lives, not over the whole run. Past that, or in
+error-controlled runs (the step control retries shorter itself), it ends the run. `deviation`
+measures the coupling's own error of a step for the step control.
 
 Nothing here knows the models: any FMU with canGetAndSetFMUstate takes part.
 """
@@ -51,8 +52,8 @@ import numpy as np
 from fmpy.fmi1 import FMICallException
 
 from .coupling import DerivativeTransfer, NonFiniteDerivative, capabilities
-from .fmustate import States
 from .errors import ScenarioError, SimulationError
+from .fmustate import States
 
 ITERATION_TOL = 1e-6    # fixed steps: the end values agree to this fraction of the inputs' scale
 ITERATION_FLOOR = 1e-7  # never asked for less: about what the FMUs' own integration error makes of

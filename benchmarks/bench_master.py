@@ -211,6 +211,10 @@ def main(argv=None) -> int:
     for row in rows:
         worst = max(row["t_fixed"], row["t_tol"]) / row["t_mono"]
         verdict = "meets the goal (<= 1)" if worst <= 1 else ("meets the must (<= 2)" if worst <= 2 else "MISSES 2x")
+        floors = {"fixed": row["fmu_fixed"] / row["t_mono"], "tolerance": row["fmu_tol"] / row["t_mono"]}
+        over = [f"{k} {v:.2f}x" for k, v in floors.items() if v > 2]
+        if over:
+            verdict += f" (the FMU calls alone cost {', '.join(over)}: no master meets the must at those steps)"
         coupling = (f"{row['coupling']} coupling ({row['implicit'].summary()})" if row["coupling"] == "implicit"
                     else f"coupling order {row['orders']}")
         print(f"{row['name']}: {verdict}; fixed {row['steps']} steps of {row['h']:g} s, {coupling}; "

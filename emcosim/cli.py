@@ -176,6 +176,12 @@ def _parser() -> argparse.ArgumentParser:
                                                     "its own gains: other gains may need a smaller one, or --tolerance)")
     sw.add_argument("--tolerance", type=float, metavar="TOL",
                     help="error-controlled communication steps in every run, as `run --tolerance` (relative error)")
+    sw.add_argument("--coupling", choices=("explicit", "implicit"),
+                    help="the coupling of every run, as `run --coupling` (default: the scenario's); implicit "
+                         "coupling bears gains that make the loop stiff at the scenario's step")
+    sw.add_argument("--coupling-order", type=int, choices=range(0, 4), metavar="K",
+                    help="highest derivative handed along a connection in every run, as `run --coupling-order` "
+                         "[0..3] (explicit coupling only)")
     sw.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     sw.add_argument("--no-plots", action="store_true", help="write the table only")
     sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
@@ -262,9 +268,7 @@ def cmd_run(args) -> int:
     if args.max_step is not None and args.tolerance is None:
         raise ScenarioError("--max-step bounds the steps that --tolerance chooses; without --tolerance the "
                             "steps are fixed: use --step-size")
-    if args.coupling == "implicit" and args.coupling_order is not None:
-        raise ScenarioError(f"--coupling-order {args.coupling_order} sets the derivatives of explicit coupling; "
-                            "--coupling implicit passes none (it sets its inputs' polynomials itself, from the end of each step)")
+    _check_coupling(args)
     implicit = None if args.coupling is None else args.coupling == "implicit"
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
@@ -409,6 +413,13 @@ def cmd_certify(args) -> int:
     return 0
 
 
+def _check_coupling(args) -> None:
+    """--coupling implicit and --coupling-order exclude each other (run and sweep)."""
+    if args.coupling == "implicit" and args.coupling_order is not None:
+        raise ScenarioError(f"--coupling-order {args.coupling_order} sets the derivatives of explicit coupling; "
+                            "--coupling implicit passes none (it sets its inputs' polynomials itself, from the end of each step)")
+
+
 def cmd_sweep(args) -> int:
     from .engine.results import OutputFolder, reason_of
     from .paper.sweep import RowStream, parse_grid, parse_sample, security, sweep
@@ -418,6 +429,7 @@ def cmd_sweep(args) -> int:
     samples = [parse_sample(s) for s in args.sample]
     _positive(args.step_size, "--step-size")
     _positive(args.tolerance, "--tolerance")
+    _check_coupling(args)
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
     scenario = _read(args.scenario, args.fmu_dir, args)
@@ -432,7 +444,7 @@ def cmd_sweep(args) -> int:
             rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
                                step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
                                stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream,
-                               tolerance=args.tolerance)
+                               tolerance=args.tolerance, coupling=args.coupling, coupling_order=args.coupling_order)
         finally:
             stream.close()
         files = write_table(rows, folder.path, info)
@@ -456,8 +468,9 @@ def cmd_sweep(args) -> int:
           f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
     if info["failed"] and args.step_size is None and args.tolerance is None:
         step = f" ({scenario.step_size:g} s)" if scenario.step_size else ""
+        stiff = ", or --coupling implicit if the gains make the loop stiff" if info["coupling"] != "implicit" else ""
         print(f"emcosim: note: the runs used the scenario's step{step}, chosen for its own gains; "
-              "failed runs may need --step-size or --tolerance (the status column says why each failed)",
+              f"failed runs may need --step-size or --tolerance{stiff} (the status column says why each failed)",
               file=sys.stderr)
     return 0
 

@@ -32,11 +32,12 @@ class Session(master.Simulation):
 
     def run(self, start_values: dict[str, str | float] | None = None, stop_time: float | None = None,
             step_size: float | None = None, record: Sequence[str] | None = None,
-            tolerance: float | None = None, coupling_order: int | None = None) -> Result:
+            tolerance: float | None = None, coupling_order: int | None = None,
+            implicit: bool | None = None) -> Result:
         """Run the scenario once, like `master.simulate` with the same arguments (fixed communication
         step unless a tolerance is given); raises the same ScenarioError / SimulationError."""
         return super().run(stop_time=stop_time, step_size=step_size, start_values=start_values, record=record,
-                           tolerance=tolerance, coupling_order=coupling_order)
+                           tolerance=tolerance, coupling_order=coupling_order, implicit=implicit)
 
 
 def on_main_thread(fn: Callable[[], T]) -> T:

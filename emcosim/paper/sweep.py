@@ -179,16 +179,19 @@ def metrics_of(scenario: Scenario, values: dict[str, float], result) -> dict[str
 
 
 def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], stop_time: float | None = None,
-              step_size: float | None = None, tolerance: float | None = None) -> dict:
+              step_size: float | None = None, tolerance: float | None = None, coupling: str | None = None,
+              coupling_order: int | None = None) -> dict:
     """Run the scenario once with `values` and return its table row: the values, the metrics and
     'status' ('ok' or the one-line error). Never raises for a failing run. `tolerance`: error-controlled
     communication steps (as `emcosim run --tolerance`) instead of the fixed step, which the scenario
-    chose for its own gains and which other gains may not bear."""
+    chose for its own gains and which other gains may not bear. `coupling` ('explicit' or 'implicit',
+    default the scenario's) and `coupling_order`: as `emcosim run --coupling` and `--coupling-order`."""
     row: dict = dict(values)
     try:
         scenario, session = _session(ssd, fmu_dir)
         result = session.run({k: float(v) for k, v in values.items()}, stop_time=stop_time, step_size=step_size,
-                             tolerance=tolerance)
+                             tolerance=tolerance, coupling_order=coupling_order,
+                             implicit=None if coupling is None else coupling == "implicit")
         row.update(metrics_of(scenario, values, result))
         row["status"] = "ok"
     except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash
@@ -272,15 +275,17 @@ def _sigint_ignored() -> Iterator[None]:
 
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             stop_time: float | None = None, step_size: float | None = None,
-            stream: TextIO | None = sys.stderr, on_row=None, tolerance: float | None = None) -> list[dict]:
+            stream: TextIO | None = sys.stderr, on_row=None, tolerance: float | None = None,
+            coupling: str | None = None, coupling_order: int | None = None) -> list[dict]:
     """Submit every run to the cluster and return the rows in the order of `runs`; a progress bar
     of the runs done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is
-    called as each run finishes."""
+    called as each run finishes. The other arguments: those of `run_point`."""
     from dask.distributed import as_completed
 
     from ..progress import Counter
 
-    futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, tolerance, pure=False)
+    futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, tolerance, coupling,
+                             coupling_order, pure=False)
                for values in runs]
     index = {f.key: i for i, f in enumerate(futures)}
     rows: list[dict | None] = [None] * len(runs)
@@ -308,9 +313,11 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
           samples: list[tuple[str, float, float]] = (), n_samples: int = 0, seed: int = 0,
           stop_time: float | None = None, step_size: float | None = None, workers: int | None = None,
           scheduler: str | None = None, stream: TextIO | None = sys.stderr, security=None,
-          on_row=None, tolerance: float | None = None) -> tuple[list[dict], dict]:
+          on_row=None, tolerance: float | None = None, coupling: str | None = None,
+          coupling_order: int | None = None) -> tuple[list[dict], dict]:
     """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
-    the wall time and the throughput. `on_row(i, row)`: see `run_all`."""
+    the wall time and the throughput. `on_row(i, row)`: see `run_all`; `coupling`, `coupling_order`:
+    see `run_point`."""
     runs = points(grid, samples, n_samples, seed)
     names = list(runs[0])
     options = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
@@ -321,7 +328,7 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
         started = time.perf_counter()
         try:
             rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row,
-                           tolerance)
+                           tolerance, coupling, coupling_order)
             end = time.perf_counter()
             n_workers = len(client.nthreads())
         finally:
@@ -331,7 +338,8 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
             "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",
             "wall_time_s": closed - tic, "run_time_s": end - started,
             "runs_per_s": len(rows) / (end - started) if end > started else float("nan"),
-            "stop_time": stop_time, "step_size": step_size, "tolerance": tolerance, "seed": seed,
+            "stop_time": stop_time, "step_size": step_size, "tolerance": tolerance,
+            "coupling": coupling or scenario.coupling or "explicit", "coupling_order": coupling_order, "seed": seed,
             "grid": {n: v for n, v in grid}, "samples": {n: [lo, hi] for n, lo, hi in samples},
             "n_samples": n_samples, "units": units}
     return rows, info

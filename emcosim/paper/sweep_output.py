@@ -45,6 +45,20 @@ def csv_cells(row: dict, cols: list[str]) -> list:
     return ["" if row.get(c) is None else (repr(row[c]) if isinstance(row[c], float) else row[c]) for c in cols]
 
 
+def _settings(info: dict) -> str:
+    """How every run of the sweep ran: its coupling, steps and horizon."""
+    parts = [f"{info['coupling']} coupling" if info.get("coupling") else "the scenario's coupling"]
+    if info.get("coupling_order") is not None:
+        parts.append(f"coupling order {info['coupling_order']}")
+    if info.get("tolerance") is not None:
+        parts.append(f"error-controlled steps, tolerance {info['tolerance']:g}")
+    else:
+        parts.append(f"step {info['step_size']:g} s" if info.get("step_size") is not None else "the scenario's step")
+    if info.get("stop_time") is not None:
+        parts.append(f"stop time {info['stop_time']:g} s")
+    return "Every run: " + ", ".join(parts) + "."
+
+
 def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
     """sweep.csv, sweep.md and sweep.json (rows + info) into `out`."""
     out.mkdir(parents=True, exist_ok=True)
@@ -60,7 +74,7 @@ def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
             (f"{c} [{METRIC_LABELS[c][1]}]" if c in METRIC_LABELS else c) for c in cols]
     lines = [f"# Sweep of {info.get('scenario', '')}", "",
              f"{info.get('runs')} runs, {info.get('failed')} failed, {info.get('workers')} worker(s), "
-             f"{info.get('runs_per_s', float('nan')):.3g} runs/s.", "",
+             f"{info.get('runs_per_s', float('nan')):.3g} runs/s.", "", _settings(info), "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(_cell(r[c]) for c in cols) + " |" for r in table]
     lines += ["", "settling_time_2pct inf: the error never stays in the 2 % band of |e(0)| within the horizon "

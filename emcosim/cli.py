@@ -331,10 +331,6 @@ def cmd_export(args) -> int:
     from .engine.container import export_container
 
     scenario = _read(args.scenario, args.fmu_dir, args)
-    if scenario.coupling == "implicit" and args.step_size is None:
-        print(f"emcosim: note: {scenario.name}'s default step {scenario.step_size:g} s is for implicit coupling; "
-              "the container couples explicitly with a zero-order hold, which a stiff loop may need a much "
-              "smaller --step-size for (docs/scenarios.md)", file=sys.stderr)
     export_container(scenario, Path(args.output), step_size=args.step_size)
     print(f"{scenario.name}: container FMU written to {args.output}")
     return 0

@@ -129,6 +129,28 @@ def test_progress_bars_only_on_a_terminal():
     assert log.getvalue() == ""
 
 
+def test_hold_engines_refuse_a_default_step_chosen_for_implicit_coupling(fmu_dir, tmp_path, capsys):
+    """mems_regulation_Dd-1's default step (25 us) is for implicit coupling; the container FMU, libcosim and
+    ecos hold each input over a step and at that step return finite but wrong numbers (libcosim: the
+    position at 1.4e3 m after 2 ms). Without a step they refuse with one line that says why; with one
+    they run (the container exported at 0.5 us)."""
+    from emcosim.engine.ecos import simulate_ecos
+    from emcosim.engine.errors import ScenarioError
+    from emcosim.engine.libcosim import simulate_libcosim
+    from emcosim.engine.ssd import read_scenario
+    fmu = tmp_path / "loop.fmu"
+    assert main(["export", "mems_regulation_Dd-1", "-o", str(fmu), "--fmu-dir", str(fmu_dir)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "default step 2.5e-05 s is for implicit coupling" in err, err
+    assert "the container FMU holds each input" in err and not fmu.exists()
+    s = read_scenario(ROOT / "scenarios" / "mems_regulation_Dd-1", fmu_dir=fmu_dir)
+    for run, engine in ((simulate_libcosim, "libcosim"), (simulate_ecos, "ecos")):
+        with pytest.raises(ScenarioError, match=f"is for implicit coupling; {engine} holds each input"):
+            run(s, stop_time=1e-4)
+    assert main(["export", "mems_regulation_Dd-1", "-o", str(fmu), "--fmu-dir", str(fmu_dir), "--step-size", "5e-7"]) == 0
+    assert fmu.is_file()
+
+
 def test_exported_loop_has_units(fmu_dir, tmp_path):
     from fmpy import read_model_description
     from fmpy.validation import validate_fmu

@@ -34,7 +34,7 @@ from .ssd import Scenario
 
 def export_container(scenario: Scenario, filename: Path, step_size: float | None = None) -> Path:
     """Write `scenario` as a container FMU to `filename` and return it."""
-    h = scenario.step_size if step_size is None else step_size
+    h = scenario.hold_step(step_size, "the container FMU")
     if h is None or not h > 0:
         raise ScenarioError(f"{scenario.path}: the container needs a positive fixed step (give --step-size)")
     instances = load(scenario)

@@ -29,6 +29,7 @@ def simulate_ecos(scenario: Scenario, stop_time: float | None = None, step_size:
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
+    step_size = scenario.hold_step(step_size, "ecos")
     context = multiprocessing.get_context("spawn")
     try:
         with ProcessPoolExecutor(1, mp_context=context) as pool:
@@ -49,7 +50,7 @@ def _simulate_here(scenario: Scenario, stop_time, step_size, record) -> tuple[li
         raise ScenarioError(f"ecos cannot load its library ({exc}); on Debian: apt-get install libtbb12") from None
     t0 = scenario.start_time
     t_stop = scenario.stop_time if stop_time is None else stop_time
-    h = scenario.step_size if step_size is None else step_size
+    h = scenario.hold_step(step_size, "ecos")
     n_steps = math.ceil((t_stop - t0) / h - 1e-9)
     if record is None:
         record = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors if k.kind == "output"]

@@ -35,6 +35,7 @@ def simulate_libcosim(scenario: Scenario, stop_time: float | None = None, step_s
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
+    step_size = scenario.hold_step(step_size, "libcosim")
     context = multiprocessing.get_context("spawn")
     try:
         with ProcessPoolExecutor(1, mp_context=context) as pool:
@@ -60,7 +61,7 @@ def _simulate(scenario: Scenario, stop_time, step_size, start_values, record) ->
         raise ScenarioError("libcosim is not installed (pip install libcosimpy)") from None
     log_output_level(CosimLogLevel.ERROR)
     t_stop = scenario.stop_time if stop_time is None else stop_time
-    h = scenario.step_size if step_size is None else step_size
+    h = scenario.hold_step(step_size, "libcosim")
     h_ns = int(round(h * NS_PER_S))
     if abs(h_ns - h * NS_PER_S) > 1e-6 * h * NS_PER_S:
         raise ScenarioError(f"step {h} s is not a whole number of nanoseconds (libcosim's time unit)")

@@ -119,6 +119,20 @@ class Scenario:
     notes: list[str] = field(default_factory=list)   # XML comments of the .ssd (documentation)
     coupling: str | None = None              # "explicit" or "implicit": our master's default (None: explicit)
 
+    def hold_step(self, step_size: float | None, engine: str) -> float | None:
+        """The communication step of an engine that holds each input over a step (a zero-order hold:
+        the container FMU, libcosim, ecos): `step_size`, else the default step, unless the scenario chose
+        it for implicit coupling: on such a stiff loop a hold needs a far shorter step, and a run at that
+        default returns finite but wrong numbers (mems_regulation_Dd-1 in libcosim at its 25 us: the
+        mirror's position q at 1.4e3 m after 2 ms), so it is refused with a ScenarioError."""
+        if step_size is not None:
+            return step_size
+        if self.coupling == "implicit":
+            raise ScenarioError(f"{self.name}: its default step {self.step_size:g} s is for implicit coupling; {engine} "
+                                "holds each input over a step (zero-order hold), which this stiff loop needs a far "
+                                "shorter step for: give the step size (docs/scenarios.md, \"Other engines\")")
+        return self.step_size
+
     def component(self, name: str) -> Component:
         for c in self.components:
             if c.name == name:

@@ -123,8 +123,8 @@ class Scenario:
         """The communication step of an engine that holds each input over a step (a zero-order hold:
         the container FMU, libcosim, ecos): `step_size`, else the default step, unless the scenario chose
         it for implicit coupling: on such a stiff loop a hold needs a far shorter step, and a run at that
-        default returns finite but wrong numbers (mems_regulation_Dd-1 in libcosim at its 25 us: the
-        mirror's position q at 1.4e3 m after 2 ms), so it is refused with a ScenarioError."""
+        default returns finite but wrong numbers (measured: docs/scenarios.md, "Other engines"), so it is
+        refused with a ScenarioError."""
         if step_size is not None:
             return step_size
         if self.coupling == "implicit":

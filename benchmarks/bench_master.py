@@ -56,20 +56,15 @@ ZOH_STEP = {"mems_regulation_Dd0": 1e-5, "mems_regulation_Dd-1": 5e-7, "mems_reg
             "maglev_regulation_prop2": 5e-4}
 
 
-REPEAT = 5            # each timing the fastest of this many runs (--repeat): the machine's noise is one-sided
+REPEAT = 5            # rounds (--repeat); each time the fastest of its rounds: the machine's noise is one-sided
 
 
-def timed(fn, repeat: int = 1):
-    """(output of the fastest run, its wall time) over `repeat` runs."""
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        gc.collect()      # a full collection inside a run (~20 ms for the loaded FMUs) would be charged to it
-        tic = time.perf_counter()
-        got = fn()
-        seconds = time.perf_counter() - tic
-        if seconds < best:
-            best, out = seconds, got
-    return out, best
+def timed(fn):
+    """(output, wall time) of one run of fn."""
+    gc.collect()          # a full collection inside a run (~20 ms for the loaded FMUs) would be charged to it
+    tic = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - tic
 
 
 def monolithic_run(s, ref) -> tuple[Callable[[], object], float, float]:
@@ -175,7 +170,8 @@ def main(argv=None) -> int:
     p.add_argument("--engines", default="container,libcosim", help="which engines besides our master")
     p.add_argument("--band", action="store_true", help="error of --tolerance 1e-2 ... 1e-5 instead of times")
     p.add_argument("--repeat", type=int, default=REPEAT,
-                   help=f"runs per timing of the monolithic solver and our master, the fastest counts (default {REPEAT})")
+                   help=f"rounds of the monolithic solver, the fixed and the error-controlled run; each time the "
+                        f"fastest of its rounds (default {REPEAT})")
     args = p.parse_args(argv)
     names = args.scenarios.split(",") if args.scenarios else [c.name for c in paper_scenarios.cases()]
     if args.band:

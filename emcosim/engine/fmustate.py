@@ -16,7 +16,7 @@ class States:
     ctypes calls (fmpy's wrappers add a Python layer per call); a failure is a SimulationError that
     names the FMU, the function and the time. `why`: what the rollback is for, for the messages."""
 
-    def __init__(self, instances: list, why: str = "implicit coupling rolls it back"):
+    def __init__(self, instances: list, why: str):
         self.instances = instances
         self.why = why
         self.calls = [(inst, inst.slave.component, inst.slave._functions["fmi2GetFMUstate"],

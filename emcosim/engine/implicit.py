@@ -155,12 +155,12 @@ class Implicit:
                 self.sets.append((DerivativeTransfer(inst, entries, getter=False), idx))
         rolled = set(by_target)
         self.rolled = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name in rolled]
-        self.states = States([inst for inst, _, _ in self.rolled])
+        self.states = States([inst for inst, _, _ in self.rolled], "implicit coupling rolls it back")
         self.once = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name not in rolled]
         # halving a step rolls back the FMUs stepped once too: only where each of them can
         once_can = all(inst.model_description.coSimulation.canGetAndSetFMUstate for inst, _, _ in self.once)
         self.halvings = halvings if once_can else 0
-        self.once_states = States([inst for inst, _, _ in self.once])
+        self.once_states = States([inst for inst, _, _ in self.once], "a step that does not converge is halved")
         self.n = len(self.inputs)
         self.scale = [0.0] * (2 * self.n)       # values, then derivatives
         self.jacobian: np.ndarray | None = None

@@ -1,404 +1,30 @@
-"""Build every emcosim FMU into build/fmus/ and pack every scenario with its FMUs into a
-self-contained SSP archive in build/ssp/ (`python build.py [--force] [--dest DIR] [--no-ssp]`).
+"""Build every emcosim FMU into build/fmus/ and pack every scenario with its FMUs into a self-contained SSP
+archive in build/ssp/: `python build.py [--force] [--dest DIR] [--no-ssp] [--docs]`.
 
-An FMU holds (docs/fmus.md, "The loader"):
-  binaries/linux64/<id>.so                the loader (fmus/emcosim_fmu_loader.c, compiled here with gcc)
-  binaries/linux64/libpythonfmu-export.so pythonfmu 0.7.0's export library, which the loader forwards to
-  resources/emcosim_fmu.txt               which Python runs the FMU: this interpreter (its environment has
-                                          numpy and scipy), its libpython and version; the build tag
-  resources/emcosim_fmu_<tag>/            the bundle package: fmus/*.py, components/ and pythonfmu's
-                                          Python package, under a name unique to the build (all Python
-                                          FMUs of a process share one interpreter and its module names)
-  resources/emcosim_fmu_<tag>_<id>.py     the script pythonfmu runs (generated: imports the slave class)
-  modelDescription.xml                    from the slave class's to_xml
-The tag is the start of the build fingerprint (every input: sources, pythonfmu, the loader, the
-compiler, the Python recorded). Archives are written with fixed timestamps and order, the loader is
-compiled deterministically and the GUID is derived from the content, so the same inputs give
-byte-identical FMUs. A stamp file records the fingerprint: when nothing changed, nothing is rebuilt.
-
-`python build.py --docs` also regenerates the variable tables of docs/fmus.md from the built
-modelDescriptions.
+The build itself is the module fmus/build.py (part of the installed package: `python -m fmus.build`); this
+script adds what belongs to this repository: the scenarios' archives and the variable tables of
+docs/fmus.md.
 """
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib
-import importlib.metadata
-import itertools
-import json
-import os
-import shutil
-import subprocess
 import sys
-import sysconfig
-import tempfile
-import zipfile
 from pathlib import Path
-from xml.dom.minidom import parseString
-from xml.etree.ElementTree import tostring
 
 ROOT = Path(__file__).resolve().parent
-FMU_SOURCES = ROOT / "fmus"
-COMPONENTS = ROOT / "components"
-LOADER = FMU_SOURCES / "emcosim_fmu_loader.c"
-DEFAULT_DEST = ROOT / "build" / "fmus"
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from fmus.build import BuildError, build, variables_markdown  # noqa: E402
+
 SSP_DEST = ROOT / "build" / "ssp"
-SCENARIOS = ROOT / "scenarios"
 DOCS = ROOT / "docs" / "fmus.md"
-STAMP = ".build-stamp.json"
-RECORD = "emcosim_fmu.txt"                     # read by the loader
-PYTHONFMU_LIBRARY = "libpythonfmu-export.so"   # the name the loader looks for beside itself
-OVERRIDE_VARIABLE = "EMCOSIM_FMU_PYTHON"
-
-# model identifier -> module of fmus/ that defines the slave class of that name
-FMUS: dict[str, str] = {
-    "MEMS": "fmu_MEMS",
-    "Maglev": "fmu_Maglev",
-    "MEMS_Proposition1": "fmu_MEMS_Proposition1",
-    "MEMS_Theorem2": "fmu_MEMS_Theorem2",
-    "Maglev_Proposition2": "fmu_Maglev_Proposition2",
-    "Maglev_Theorem3": "fmu_Maglev_Theorem3",
-    "Reference": "fmu_Reference",
-}
-OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
-# pythonfmu's Python files that are bundled (as pythonfmu's own builder does, without the two that import
-# pythonfmu by its absolute name: the bundle holds it as a subpackage)
-PYTHONFMU_SKIPPED = {"__main__.py", "csvbuilder.py"}
-
-
-_ALIASES = itertools.count()
-
-
-class BuildError(RuntimeError):
-    """Something build.py needs is missing on this machine (the message says what and how to get it)."""
-
-
-# ---- the tool chain: gcc, Python headers, libpython ------------------------------------------------
-def python_record() -> dict[str, str]:
-    """The Python the FMUs will use in hosts without Python: this interpreter, its libpython and version."""
-    version = ".".join(map(str, sys.version_info[:3]))
-    libdir = Path(sysconfig.get_config_var("LIBDIR") or "")
-    soname = sysconfig.get_config_var("INSTSONAME") or sysconfig.get_config_var("LDLIBRARY") or ""
-    multiarch = sysconfig.get_config_var("MULTIARCH") or ""
-    candidates = [libdir / soname, libdir / multiarch / soname] if soname.endswith(".so.1.0") else []
-    library = next((c for c in candidates if c.is_file()), None)
-    if library is None:
-        minor = "{}.{}".format(*sys.version_info[:2])
-        raise BuildError(
-            f"build.py: this Python ({sys.executable}, {version}) has no shared library libpython{minor}.so.1.0 "
-            f"(looked in {libdir}); the FMUs load it in hosts that have no Python. Install it (Debian/Ubuntu: "
-            f"apt-get install libpython{minor}; pyenv: env PYTHON_CONFIGURE_OPTS=--enable-shared pyenv install "
-            f"{version}) or build with a Python that has it.")
-    return {"python_executable": str(Path(sys.executable).absolute()), "python_library": str(library),
-            "python_version": version, "multiarch": multiarch}
-
-
-def _compiler() -> tuple[str, str]:
-    """gcc (or $CC) and the Python headers' folder; BuildError saying how to get what is missing."""
-    cc = os.environ.get("CC", "gcc")
-    if shutil.which(cc) is None:
-        raise BuildError(f"build.py: the C compiler {cc!r} is not installed; the FMU loader "
-                         f"(fmus/emcosim_fmu_loader.c) is compiled at build time. Install gcc (Debian/Ubuntu: "
-                         f"apt-get install gcc) or set CC.")
-    include = Path(sysconfig.get_paths()["include"])
-    if not (include / "Python.h").is_file():
-        minor = "{}.{}".format(*sys.version_info[:2])
-        raise BuildError(f"build.py: the Python headers are missing ({include}/Python.h); the FMU loader needs "
-                         f"them. Install them (Debian/Ubuntu: apt-get install python{minor}-dev; pyenv and "
-                         f"python.org builds include them).")
-    return cc, str(include)
-
-
-def _fmi_headers() -> Path:
-    import fmpy                                              # the FMI 2.0 headers shipped with fmpy
-    return Path(fmpy.__file__).parent / "c-code"
-
-
-def _compiler_version(cc: str) -> str:
-    return subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[0]
-
-
-def compile_loader(work: Path) -> Path:
-    """Compile the loader into work/loader.so (deterministic: no debug information, relative paths) and
-    check that it needs no Python symbol at load time."""
-    cc, include = _compiler()
-    shutil.copy2(LOADER, work / LOADER.name)
-    for header in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
-        shutil.copy2(_fmi_headers() / header, work / header)
-    # -Wno-format-truncation: messages are cut at MESSAGE_SIZE on purpose
-    command = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
-               "-Wno-format-truncation", "-Werror", "-I", ".", "-I", include, LOADER.name, "-o", "loader.so", "-ldl"]
-    run = subprocess.run(command, cwd=work, capture_output=True, text=True)
-    if run.returncode != 0:
-        raise BuildError(f"build.py: compiling {LOADER} failed:\n{' '.join(command)}\n{run.stderr}")
-    undefined = subprocess.run(["nm", "-D", "--undefined-only", "loader.so"], cwd=work, capture_output=True, text=True)
-    python_symbols = [line.split()[-1] for line in undefined.stdout.splitlines() if line.split()[-1].startswith(("Py", "_Py"))]
-    if undefined.returncode != 0 or python_symbols:
-        raise BuildError(f"build.py: the loader must not link Python (found {python_symbols or undefined.stderr})")
-    return work / "loader.so"
-
-
-# ---- fingerprint -----------------------------------------------------------------------------------
-def _sources(models: dict[str, Path]) -> list[Path]:
-    files = ([Path(__file__).resolve(), LOADER] + sorted(FMU_SOURCES.glob("*.py")) + sorted(COMPONENTS.rglob("*.py"))
-             + sorted(set(models.values())))
-    return [f for f in dict.fromkeys(files) if "__pycache__" not in f.parts]
-
-
-def fingerprint(models: dict[str, Path] | None = None) -> str:
-    """sha256 over every input of the build: sources, pythonfmu (code and library), the FMI headers, the
-    compiler, and the Python the FMUs record."""
-    models = _models() if models is None else models
-    try:
-        record, compiler = python_record(), _compiler_version(_compiler()[0])
-    except BuildError as exc:                       # reported by build(); the fingerprint just differs
-        record, compiler = {"missing": str(exc)}, ""
-    digest = hashlib.sha256(json.dumps([record, compiler, sorted((k, v.name) for k, v in models.items())]).encode())
-    inputs = (_sources(models) + sorted(_pythonfmu_dir().glob("*.py")) + [_pythonfmu_library()]
-              + sorted(_fmi_headers().glob("fmi2*.h")))
-    for f in inputs:
-        digest.update(f.name.encode() + b"\0" + f.read_bytes())
-    return digest.hexdigest()
-
-
-def _models() -> dict[str, Path]:
-    return {identifier: FMU_SOURCES / f"{module}.py" for identifier, module in FMUS.items()}
-
-
-def _pythonfmu_dir() -> Path:
-    """The installed pythonfmu package. Not `pythonfmu.__file__`: a pythonfmu FMU of another project run in
-    this process before its first `import pythonfmu` puts its own copy (in the FMU's unzip folder, deleted
-    after the run) into sys.modules; the build then read files that were gone (seen in the test suite when
-    tests running foreign toy FMUs came before the build fixture)."""
-    return Path(importlib.metadata.distribution("pythonfmu").locate_file("pythonfmu"))
-
-
-def _pythonfmu_library() -> Path:
-    return _pythonfmu_dir() / "resources" / "binaries" / "linux64" / PYTHONFMU_LIBRARY
-
-
-def package_name(build_fingerprint: str) -> str:
-    """The bundle package of a build: unique to this project and build."""
-    return f"emcosim_fmu_{build_fingerprint[:12]}"
-
-
-# ---- the FMU ----------------------------------------------------------------------------------------
-def _bundle(work: Path, package: str, build_fingerprint: str, models: dict[str, Path]) -> Path:
-    """work/resources/<package>: fmus/*.py, the model modules, components/ and pythonfmu's Python package."""
-    resources = work / "resources"
-    target = resources / package
-    target.mkdir(parents=True)
-    (target / "__init__.py").write_text(BUNDLE_INIT.replace("<BUILD>", build_fingerprint))
-    for source in sorted(FMU_SOURCES.glob("*.py")) + sorted(set(models.values())):
-        if (target / source.name).exists() and source.parent != FMU_SOURCES:
-            raise ValueError(f"model module {source} is named like a module of fmus/")
-        shutil.copy2(source, target / source.name)
-    shutil.copytree(COMPONENTS, target / "components", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-    (target / "pythonfmu").mkdir()
-    for source in sorted(_pythonfmu_dir().glob("*.py")):
-        if source.name not in PYTHONFMU_SKIPPED:
-            shutil.copy2(source, target / "pythonfmu" / source.name)
-    return resources
-
-
-BUNDLE_INIT = '''"""emcosim FMU bundle of build <BUILD> (generated by build.py): the framework and adapters
-of fmus/, components/ and pythonfmu's Python package, under a name unique to the build."""
-import os
-import sys
-
-BUILD = "<BUILD>"
-
-
-def add_folder(folder: str) -> None:
-    """Let this package and its subpackages already loaded also find modules in `folder`, the copy of this
-    package in another FMU of the build (called by the loader at fmi2Instantiate). The folder the package
-    was first imported from may be gone (hosts delete an FMU's unzip folder after a run); a module not
-    imported yet is then found in the FMU being instantiated."""
-    for name, module in list(sys.modules.items()):
-        path = getattr(module, "__path__", None)
-        if path is not None and (name == __name__ or name.startswith(__name__ + ".")):
-            folder_of_name = os.path.join(folder, *name.split(".")[1:])
-            if folder_of_name not in path:
-                path.append(folder_of_name)
-'''
-
-
-def _script(package: str, module: str, identifier: str, build_fingerprint: str) -> str:
-    return (f'"""emcosim FMU {identifier} (generated by build.py). pythonfmu runs this script at every\n'
-            f'fmi2Instantiate; the slave class is {identifier} of {package}/{module}.py."""\n'
-            f"from {package}.em_fmu_framework import hold_script_globals\n"
-            f"from {package}.{module} import {identifier}\n\n"
-            f'BUILD = "{build_fingerprint}"\n'
-            "hold_script_globals(globals())\n")
-
-
-def _model_description(alias: str, module: str, identifier: str, resources: Path) -> tuple[str, bytes]:
-    """(GUID, modelDescription.xml) from the slave class of the bundle, imported as package `alias`."""
-    cls = getattr(importlib.import_module(f"{alias}.{module}"), identifier)
-    slave = cls(instance_name="build", resources=str(resources))
-    root = slave.to_xml(OPTIONS)
-    cosim = root.find("CoSimulation")
-    if cosim.get("modelIdentifier") != identifier:
-        raise ValueError(f"{module}.{identifier} declares model identifier {cosim.get('modelIdentifier')}")
-    return root.get("guid"), parseString(tostring(root, "UTF-8")).toprettyxml(encoding="UTF-8")
-
-
-def _write_fmu(target: Path, files: dict[str, bytes]) -> None:
-    """A zip archive with sorted entries, fixed timestamps and permissions (reproducible)."""
-    tmp = target.with_suffix(".fmu.tmp")
-    with zipfile.ZipFile(tmp, "w") as zout:
-        for name in sorted(files):
-            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = (0o755 if name.startswith("binaries/") else 0o644) << 16
-            zout.writestr(info, files[name])
-    tmp.replace(target)
-
-
-def _repack(src: Path, dest: Path) -> None:
-    """Rewrite a zip archive with sorted entries, fixed timestamps and permissions (reproducible)."""
-    with zipfile.ZipFile(src) as zin:
-        files = {i.filename: zin.read(i.filename) for i in zin.infolist() if not i.is_dir()}
-    _write_fmu(dest, files)
-
-
-def build_fmus(models: dict[str, Path], dest: Path | str, build_fingerprint: str | None = None) -> dict[str, Path]:
-    """Build one FMU per entry of `models` (model identifier -> Python module defining the slave class of
-    that name, an EMSlave importing the framework and adapters relatively, like fmus/fmu_MEMS.py) into
-    `dest`, all with one bundle. Returns model identifier -> FMU path."""
-    dest = Path(dest)
-    dest.mkdir(parents=True, exist_ok=True)
-    build_fingerprint = build_fingerprint or fingerprint(models)
-    record = python_record()
-    package = package_name(build_fingerprint)
-    paths = {}
-    with tempfile.TemporaryDirectory(prefix="emcosim_build_") as tmp:
-        work = Path(tmp)
-        loader = compile_loader(work).read_bytes()
-        resources = _bundle(work, package, build_fingerprint, models)
-        bundle_files = {f"resources/{f.relative_to(resources).as_posix()}": f.read_bytes()
-                        for f in sorted(resources.rglob("*")) if f.is_file() and "__pycache__" not in f.parts}
-        # the bundle is imported under a name of its own for the build (its modules import each other
-        # relatively) and forgotten after: the build's process keeps no module of the FMUs' names, whose
-        # folder would be gone (an FMU instantiated later in this process imports its own copy)
-        alias = f"_emcosim_build_{os.getpid()}_{next(_ALIASES)}"
-        (work / "import").mkdir()
-        (work / "import" / alias).symlink_to(resources / package, target_is_directory=True)
-        sys.path.insert(0, str(work / "import"))
-        try:
-            descriptions = {identifier: _model_description(alias, source.stem, identifier, resources)
-                            for identifier, source in models.items()}
-        finally:
-            sys.path.remove(str(work / "import"))
-            for name in [m for m in sys.modules if m == alias or m.startswith(alias + ".")]:
-                del sys.modules[name]
-        for identifier, source in models.items():
-            module = source.stem
-            script = f"{package}_{identifier}"
-            guid, description = descriptions[identifier]
-            lines = {**record, "package": package, "script": script, "build": build_fingerprint, "guid": guid}
-            files = dict(bundle_files)
-            files["modelDescription.xml"] = description
-            files["resources/slavemodule.txt"] = script.encode()
-            files[f"resources/{script}.py"] = _script(package, module, identifier, build_fingerprint).encode()
-            files[f"resources/{RECORD}"] = (
-                "# emcosim FMU: the Python that runs it in a host without Python (written by build.py, read by\n"
-                f"# binaries/linux64/{identifier}.so). {OVERRIDE_VARIABLE}=<a Python {record['python_version'][:4]} "
-                "executable whose environment has\n# numpy and scipy> overrides python_executable.\n"
-                + "".join(f"{k} = {v}\n" for k, v in lines.items())).encode()
-            files[f"binaries/linux64/{identifier}.so"] = loader
-            files[f"binaries/linux64/{PYTHONFMU_LIBRARY}"] = _pythonfmu_library().read_bytes()
-            paths[identifier] = dest / f"{identifier}.fmu"
-            _write_fmu(paths[identifier], files)
-    return paths
-
-
-def up_to_date(dest: Path | str = DEFAULT_DEST, current: str | None = None) -> bool:
-    """True when every FMU in `dest` was built from the current sources (stamp fingerprint and hashes)."""
-    dest = Path(dest)
-    try:
-        stamp = json.loads((dest / STAMP).read_text())
-    except (OSError, ValueError):
-        return False
-    paths = {identifier: dest / f"{identifier}.fmu" for identifier in FMUS}
-    return (stamp.get("fingerprint") == (current or fingerprint())
-            and all(p.exists() and hashlib.sha256(p.read_bytes()).hexdigest() == stamp.get("fmus", {}).get(i)
-                    for i, p in paths.items()))
-
-
-def build(dest: Path | str = DEFAULT_DEST, force: bool = False, verbose: bool = True) -> dict[str, Path]:
-    """Build every FMU into `dest` (skipped when the stamp says the inputs are unchanged).
-    Returns model identifier -> FMU path."""
-    dest = Path(dest)
-    dest.mkdir(parents=True, exist_ok=True)
-    paths = {identifier: dest / f"{identifier}.fmu" for identifier in FMUS}
-    stamp_file = dest / STAMP
-    current = fingerprint()
-    if not force and up_to_date(dest, current):
-        if verbose:
-            for identifier, path in paths.items():
-                print(f"up to date  {path}")
-        return paths
-    paths = build_fmus(_models(), dest, current)
-    hashes = {identifier: hashlib.sha256(path.read_bytes()).hexdigest() for identifier, path in paths.items()}
-    if verbose:
-        for identifier, path in paths.items():
-            print(f"built       {path}  ({path.stat().st_size / 1024:.0f} kB, sha256 {hashes[identifier][:12]})")
-    stamp_file.write_text(json.dumps({"fingerprint": current, "fmus": hashes}, indent=1))
-    return paths
-
-
-def pack_scenarios(fmu_dir: Path | str = DEFAULT_DEST, dest: Path | str = SSP_DEST, verbose: bool = True) -> list[Path]:
-    """Pack every scenario of scenarios/ with the FMUs of `fmu_dir` into a self-contained SSP archive
-    dest/<name>.ssp (SystemStructure.ssd, its .ssv files, the FMUs under resources/), repacked like
-    the FMUs so that the same inputs give the same bytes."""
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
-    from emcosim.engine.ssp import pack_ssp
-
-    dest = Path(dest)
-    dest.mkdir(parents=True, exist_ok=True)
-    out = []
-    with tempfile.TemporaryDirectory(prefix="emcosim_ssp_") as work:
-        for folder in sorted(p for p in SCENARIOS.iterdir() if (p / "SystemStructure.ssd").is_file()):
-            raw = pack_ssp(folder, Path(work) / f"{folder.name}.ssp", fmu_dir=fmu_dir)
-            target = dest / raw.name
-            _repack(raw, target)
-            out.append(target)
-            if verbose:
-                print(f"packed      {target}  ({target.stat().st_size / 1024:.0f} kB)")
-    return out
-
-
-# ---- documentation ------------------------------------------------------------------------------
 DOCS_BEGIN = "<!-- BEGIN GENERATED VARIABLES (python build.py --docs) -->"
 DOCS_END = "<!-- END GENERATED VARIABLES -->"
 
 
-def variables_markdown(paths: dict[str, Path]) -> str:
-    """One Markdown table per FMU, from its modelDescription.xml."""
-    from fmpy import read_model_description
-
-    parts = []
-    for identifier, path in paths.items():
-        md = read_model_description(str(path))
-        deps = {u.variable.name: u.dependencies for u in md.outputs}
-        parts.append(f"### {identifier}\n\n{md.description}\n\n"
-                     f"Default experiment: {md.defaultExperiment.startTime} s to {md.defaultExperiment.stopTime} s, "
-                     f"step {md.defaultExperiment.stepSize} s.\n")
-        parts.append("| name | causality | start | unit | description |\n|---|---|---|---|---|")
-        for v in md.modelVariables:
-            start = v.start if v.start is not None else ""
-            extra = ""
-            if v.name in deps:
-                extra = " (depends on: " + (", ".join(d.name for d in deps[v.name]) or "no input") + ")"
-            parts.append(f"| {v.name} | {v.causality} | {start} | {v.unit or ''} | {v.description}{extra} |")
-        parts.append("")
-    return "\n".join(parts)
-
-
 def update_docs(paths: dict[str, Path], docs: Path = DOCS) -> None:
+    """Regenerate the variable tables of docs/fmus.md from the built modelDescriptions."""
     text = docs.read_text()
     head, rest = text.split(DOCS_BEGIN)
     _, tail = rest.split(DOCS_END)
@@ -407,7 +33,7 @@ def update_docs(paths: dict[str, Path], docs: Path = DOCS) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dest", default=str(DEFAULT_DEST), help="output folder (default build/fmus)")
+    parser.add_argument("--dest", default=str(ROOT / "build" / "fmus"), help="output folder (default build/fmus)")
     parser.add_argument("--force", action="store_true", help="rebuild even if the inputs are unchanged")
     parser.add_argument("--docs", action="store_true", help="regenerate the variable tables of docs/fmus.md")
     parser.add_argument("--no-ssp", action="store_true", help="do not pack the scenarios into build/ssp/*.ssp")
@@ -418,7 +44,8 @@ def main(argv: list[str] | None = None) -> int:
         print(exc, file=sys.stderr)
         return 2
     if not args.no_ssp:
-        pack_scenarios(args.dest)
+        from emcosim.paper.scenarios import pack_archives
+        pack_archives(args.dest, SSP_DEST)
     if args.docs:
         update_docs(paths)
         print(f"updated     {DOCS}")

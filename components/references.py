@@ -14,6 +14,13 @@ import numpy as np
 from .parameters import Parameter, resolve
 from .ph_plant import Jet
 
+# the reference jet as variables (name, unit, description): the outputs of the Reference FMU and the inputs
+# of the tracking controllers; entry k is q*^(k)
+JET_VARIABLES = (("q_star", "m", "reference position q*"),
+                 ("q_star_dot", "m/s", "first derivative of the reference position, q*'"),
+                 ("q_star_ddot", "m/s2", "second derivative of the reference position, q*''"),
+                 ("q_star_dddot", "m/s3", "third derivative of the reference position, q*'''"))
+
 
 class Reference:
     """A reference position q*(t) with three continuous derivatives."""

@@ -17,12 +17,14 @@
  *  2. Checks, before pythonfmu's code runs: numpy and scipy import, and no module of this FMU's names (its
  *     bundle package emcosim_fmu_<tag>, its script) is already loaded from another build: fmi2Instantiate
  *     refuses a clash with one message.
- *  3. Creates the instance with pythonfmu's library, then answers every FMI call of an emcosim slave
- *     itself by calling the framework's fmi2_* methods (em_fmu_framework.EMSlave) with the GIL held: they
+ *  3. Creates the instance with pythonfmu's library (always as a Co-Simulation one: pythonfmu has no Model
+ *     Exchange; the slave is told the host's fmuType), then answers every FMI call of an emcosim slave
+ *     itself by calling the slave's fmi2_* methods (fmus/slave.py: EMSlave) with the GIL held: they
  *     return (status, ..., message) and never raise, so a bad argument or a call in the wrong state gets
- *     fmi2Error with a message, FMU states are checked before use, and the three derivative functions
- *     are answered. Only fmi2Instantiate, fmi2Reset and fmi2FreeInstance go to pythonfmu's library (and
- *     every call of a slave that is not an emcosim one, e.g. the benchmark's floor).
+ *     fmi2Error with a message, FMU states are checked before use, and the three derivative functions and
+ *     the Model Exchange functions are answered. Only fmi2Instantiate, fmi2Reset and fmi2FreeInstance go
+ *     to pythonfmu's library (and every call of a slave that is not an emcosim one, e.g. the benchmark's
+ *     floor).
  *  4. Keeps a registry of its live instances and of the FMU states they gave out: a call with a NULL,
  *     unknown or freed instance (a second fmi2FreeInstance) or state is refused, not followed.
  *  5. Logs through the host's logger: warnings and errors always, other messages with loggingOn.
@@ -114,7 +116,8 @@ typedef struct {                             /* the value references of the last
 typedef struct {
     fmi2Component inner;                     /* pythonfmu's instance */
     char *name;
-    char package[128];                       /* the bundle package (em_fmu_framework is found there) */
+    char package[128];                       /* the bundle package (fmus.pythonfmu_workarounds is found there) */
+    fmi2Type type;                           /* the host's fmuType */
     fmi2CallbackFunctions host;              /* the host's callbacks, copied */
     fmi2CallbackFunctions callbacks;         /* given to pythonfmu: its messages go through `relay` */
     int logging_on;                          /* the host's loggingOn (fmi2Instantiate, fmi2SetDebugLogging) */
@@ -122,6 +125,7 @@ typedef struct {
     PyObject *slave;                         /* the EMSlave (a strong reference), or NULL: forward all */
     PyObject *log_queue;                     /* slave.log_queue, drained after every call */
     PyObject *set_real, *get_real, *do_step; /* the slave's methods of every communication step */
+    PyObject *set_time, *set_states, *get_derivatives;   /* ... and of every right-hand side (Model Exchange) */
     VrCache set_vrs, get_vrs;
     PyObject **states;                       /* the FMU states this instance gave out (strong references) */
     size_t n_states, cap_states;
@@ -664,22 +668,27 @@ static void clear_vrs(VrCache *cache)
     cache->n = 0;
 }
 
-/* The EMSlave pythonfmu constructed last on this thread (em_fmu_framework.take_new_slave), with the
- * methods of every communication step and its log queue; none for a slave that is not an EMSlave (then
- * every call goes to pythonfmu's library). GIL held. */
+/* The slave's references the loader holds: the slave, its log queue and the bound methods of the hot calls. */
+#define SLAVE_OBJECTS(instance)                                                                           \
+    {&(instance)->slave, &(instance)->log_queue, &(instance)->set_real, &(instance)->get_real,               \
+     &(instance)->do_step, &(instance)->set_time, &(instance)->set_states, &(instance)->get_derivatives}
+#define N_SLAVE_OBJECTS 8
+
+/* The EMSlave pythonfmu constructed last on this thread (fmus.pythonfmu_workarounds.take_new_slave), with
+ * the methods of every communication step and right-hand side, and its log queue; none for a slave that is
+ * not an EMSlave (then every call goes to pythonfmu's library). GIL held. */
 static void take_slave(Instance *instance)
 {
     char module[256], text[MESSAGE_SIZE];
-    PyObject **objects[] = {&instance->slave, &instance->log_queue, &instance->set_real, &instance->get_real,
-                            &instance->do_step};
-    for (int i = 0; i < 5; i++) clear(objects[i]);
+    PyObject **objects[] = SLAVE_OBJECTS(instance);
+    for (int i = 0; i < N_SLAVE_OBJECTS; i++) clear(objects[i]);
     clear_vrs(&instance->set_vrs);
     clear_vrs(&instance->get_vrs);
-    snprintf(module, sizeof module, "%s.em_fmu_framework", instance->package);
-    PyObject *framework = py.PyImport_ImportModule(module);
-    PyObject *take = framework ? py.PyObject_GetAttrString(framework, "take_new_slave") : NULL;
+    snprintf(module, sizeof module, "%s.fmus.pythonfmu_workarounds", instance->package);
+    PyObject *workarounds = py.PyImport_ImportModule(module);
+    PyObject *take = workarounds ? py.PyObject_GetAttrString(workarounds, "take_new_slave") : NULL;
     PyObject *slave = take ? py.PyObject_CallFunctionObjArgs(take, NULL) : NULL;
-    if (framework) py.Py_DecRef(framework);
+    if (workarounds) py.Py_DecRef(workarounds);
     if (take) py.Py_DecRef(take);
     if (slave == NULL) {                      /* a bundle without the framework: pythonfmu answers */
         python_error_text(text, sizeof text);
@@ -691,8 +700,13 @@ static void take_slave(Instance *instance)
     instance->log_queue = py.PyObject_GetAttrString(slave, "log_queue");
     instance->set_real = py.PyObject_GetAttrString(slave, "fmi2_set_real");
     instance->get_real = py.PyObject_GetAttrString(slave, "fmi2_get_real");
-    if (!instance->do_step || !instance->log_queue || !instance->set_real || !instance->get_real)
-        for (int i = 0; i < 5; i++) clear(objects[i]);
+    instance->set_time = py.PyObject_GetAttrString(slave, "fmi2_set_time");
+    instance->set_states = py.PyObject_GetAttrString(slave, "fmi2_set_continuous_states");
+    instance->get_derivatives = py.PyObject_GetAttrString(slave, "fmi2_get_derivatives");
+    int complete = 1;
+    for (int i = 0; i < N_SLAVE_OBJECTS; i++) complete = complete && *objects[i] != NULL;
+    if (!complete)
+        for (int i = 0; i < N_SLAVE_OBJECTS; i++) clear(objects[i]);
     py.PyErr_Clear();
 }
 
@@ -827,6 +841,20 @@ static fmi2Status copy_values(Instance *instance, const char *function, Answer a
     return answer.status;
 }
 
+/* Take the new slave and tell it the host's fmuType (slave.fmi2_set_interface). A slave that is not an
+ * emcosim one can only be a Co-Simulation instance (pythonfmu answers). GIL held. */
+static fmi2Status tell_interface(Instance *instance)
+{
+    take_slave(instance);
+    if (instance->slave == NULL) {
+        if (instance->type == fmi2CoSimulation) return fmi2OK;
+        emitf(instance, fmi2Error, "fmi2Instantiate: this FMU's slave is not an emcosim one: Co-Simulation only");
+        return fmi2Error;
+    }
+    PyObject *args[1] = {py.PyLong_FromLong((long)instance->type)};
+    return ask(instance, "fmi2Instantiate", NULL, "fmi2_set_interface", args, 1, 2).status;
+}
+
 /* ---- FMI functions: creation and destruction ------------------------------------------------------- */
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 
@@ -844,9 +872,9 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                     "functions must not be NULL");
         return NULL;
     }
-    if (fmuType != fmi2CoSimulation) {
-        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: this FMU is for Co-Simulation only "
-                    "(fmuType %d)", (int)fmuType);
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        log_to_host(functions, name, fmi2Error, "fmi2Instantiate: fmuType %d is neither fmi2ModelExchange (0) nor "
+                    "fmi2CoSimulation (1)", (int)fmuType);
         return NULL;
     }
     if (fmuResourceLocation == NULL || uri_to_path(fmuResourceLocation, resources, sizeof resources) != 0) {
@@ -880,16 +908,25 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     instance->logging_on = loggingOn == fmi2True;
     copy_string(instance->package, sizeof instance->package, record.package);
     snprintf(uri, sizeof uri, "file://%s", resources);       /* decoded: pythonfmu only decodes %20 */
-    /* pythonfmu logs only with loggingOn: it gets fmi2True and `relay` filters */
-    instance->inner = lib.fmi2Instantiate(instanceName, fmuType, fmuGUID, uri, &instance->callbacks, visible, fmi2True);
+    instance->type = fmuType;
+    /* pythonfmu logs only with loggingOn: it gets fmi2True and `relay` filters; it creates Co-Simulation
+     * instances only (the slave learns the host's fmuType below) */
+    instance->inner = lib.fmi2Instantiate(instanceName, fmi2CoSimulation, fmuGUID, uri, &instance->callbacks, visible,
+                                          fmi2True);
     if (instance->inner == NULL) {
         free(instance->name);
         free(instance);
         return NULL;
     }
     PyGILState_STATE gil = py.PyGILState_Ensure();
-    take_slave(instance);
+    fmi2Status told = tell_interface(instance);
     py.PyGILState_Release(gil);
+    if (told > fmi2Warning) {                           /* a Model Exchange instance of a slave that cannot be one */
+        lib.fmi2FreeInstance(instance->inner);
+        free(instance->name);
+        free(instance);
+        return NULL;
+    }
     if (register_instance(instance) != 0) {
         log_to_host(functions, name, fmi2Error, "fmi2Instantiate: out of memory");
         lib.fmi2FreeInstance(instance->inner);
@@ -905,9 +942,8 @@ void fmi2FreeInstance(fmi2Component c)
     unregister_instance(instance);
     lib.fmi2FreeInstance(instance->inner);
     PyGILState_STATE gil = py.PyGILState_Ensure();
-    PyObject **objects[] = {&instance->slave, &instance->log_queue, &instance->set_real, &instance->get_real,
-                            &instance->do_step};
-    for (int i = 0; i < 5; i++) clear(objects[i]);
+    PyObject **objects[] = SLAVE_OBJECTS(instance);
+    for (int i = 0; i < N_SLAVE_OBJECTS; i++) clear(objects[i]);
     clear_vrs(&instance->set_vrs);
     clear_vrs(&instance->get_vrs);
     for (size_t i = 0; i < instance->n_states; i++) py.Py_DecRef(instance->states[i]);   /* freed with it */
@@ -923,8 +959,9 @@ fmi2Status fmi2Reset(fmi2Component c)
     if (instance == NULL) return fmi2Error;
     fmi2Status status = lib.fmi2Reset(instance->inner);       /* pythonfmu creates a new Python slave */
     PyGILState_STATE gil = py.PyGILState_Ensure();
-    take_slave(instance);
+    fmi2Status told = tell_interface(instance);
     py.PyGILState_Release(gil);
+    if (told > status) status = told;
     if (status > fmi2Warning) instance->failed = 1;
     return status;
 }
@@ -1288,6 +1325,135 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
     if (answer.status > fmi2Warning) clear(&answer.value);
     py.PyGILState_Release(gil);
     return status;
+}
+
+/* ---- Model Exchange (fmus/model_exchange.py: the state machine and the checks) ------------------------ */
+/* Copy a list answer of n values (fmi2OK or fmi2Warning), else leave `values` alone. GIL held. */
+static fmi2Status list_answer(Instance *instance, const char *function, Answer answer, fmi2Real values[], size_t n)
+{
+    if (answer.status <= fmi2Warning) return copy_values(instance, function, answer, values, NULL, n);
+    clear(&answer.value);
+    return answer.status;
+}
+
+/* Copy the ints of a tuple answer into `flags` (n of them) and the real at index `real_at` into *real. */
+static void tuple_answer(Answer answer, int flags[], int n, int real_at, fmi2Real *real)
+{
+    for (int i = 0; answer.value != NULL && i < n; i++)
+        flags[i] = (int)py.PyLong_AsLong(py.PyTuple_GetItem(answer.value, i));
+    if (answer.value != NULL && real != NULL) *real = py.PyFloat_AsDouble(py.PyTuple_GetItem(answer.value, real_at));
+    py.PyErr_Clear();
+}
+
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time)
+{
+    BEGIN(fmi2SetTime, unsupported(instance, "fmi2SetTime"))
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {py.PyFloat_FromDouble(time)};
+    Answer answer = ask(instance, "fmi2SetTime", instance->set_time, NULL, args, 1, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx)
+{
+    BEGIN(fmi2SetContinuousStates, unsupported(instance, "fmi2SetContinuousStates"))
+    NULL_ARRAYS(fmi2SetContinuousStates, nx > 0 && x == NULL)
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {list_of_reals(x, nx)};
+    Answer answer = ask(instance, "fmi2SetContinuousStates", instance->set_states, NULL, args, 1, 2);
+    py.PyGILState_Release(gil);
+    return answer.status;
+}
+
+/* fmi2GetContinuousStates, fmi2GetDerivatives, fmi2GetEventIndicators, fmi2GetNominalsOfContinuousStates:
+ * the slave's method answers (status, values, message) for n values. */
+static fmi2Status get_vector(Instance *instance, const char *function, PyObject *bound, const char *method,
+                             fmi2Real values[], size_t n)
+{
+    if (n > 0 && values == NULL) {
+        emitf(instance, fmi2Error, "%s: NULL array or pointer argument", function);
+        return fmi2Error;
+    }
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {py.PyLong_FromUnsignedLong((unsigned long)n)};
+    fmi2Status status = list_answer(instance, function, ask(instance, function, bound, method, args, 1, 3), values, n);
+    py.PyGILState_Release(gil);
+    return status;
+}
+
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx)
+{
+    BEGIN(fmi2GetContinuousStates, unsupported(instance, "fmi2GetContinuousStates"))
+    return get_vector(instance, "fmi2GetContinuousStates", NULL, "fmi2_get_continuous_states", x, nx);
+}
+
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx)
+{
+    BEGIN(fmi2GetDerivatives, unsupported(instance, "fmi2GetDerivatives"))
+    return get_vector(instance, "fmi2GetDerivatives", instance->get_derivatives, NULL, derivatives, nx);
+}
+
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni)
+{
+    BEGIN(fmi2GetEventIndicators, unsupported(instance, "fmi2GetEventIndicators"))
+    return get_vector(instance, "fmi2GetEventIndicators", NULL, "fmi2_get_event_indicators", eventIndicators, ni);
+}
+
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx)
+{
+    BEGIN(fmi2GetNominalsOfContinuousStates, unsupported(instance, "fmi2GetNominalsOfContinuousStates"))
+    return get_vector(instance, "fmi2GetNominalsOfContinuousStates", NULL, "fmi2_get_nominals_of_continuous_states",
+                      x_nominal, nx);
+}
+
+fmi2Status fmi2EnterEventMode(fmi2Component c)
+{
+    BEGIN(fmi2EnterEventMode, unsupported(instance, "fmi2EnterEventMode"))
+    return ask_status(instance, "fmi2EnterEventMode", NULL, "fmi2_enter_event_mode", NULL, 0);
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c)
+{
+    BEGIN(fmi2EnterContinuousTimeMode, unsupported(instance, "fmi2EnterContinuousTimeMode"))
+    return ask_status(instance, "fmi2EnterContinuousTimeMode", NULL, "fmi2_enter_continuous_time_mode", NULL, 0);
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo)
+{
+    BEGIN(fmi2NewDiscreteStates, unsupported(instance, "fmi2NewDiscreteStates"))
+    NULL_ARRAYS(fmi2NewDiscreteStates, eventInfo == NULL)
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    Answer answer = ask(instance, "fmi2NewDiscreteStates", NULL, "fmi2_new_discrete_states", NULL, 0, 3);
+    int flags[5] = {0, 0, 0, 0, 0};
+    fmi2Real next = 0.0;
+    tuple_answer(answer, flags, 5, 5, &next);
+    clear(&answer.value);
+    py.PyGILState_Release(gil);
+    eventInfo->newDiscreteStatesNeeded = flags[0] ? fmi2True : fmi2False;
+    eventInfo->terminateSimulation = flags[1] ? fmi2True : fmi2False;
+    eventInfo->nominalsOfContinuousStatesChanged = flags[2] ? fmi2True : fmi2False;
+    eventInfo->valuesOfContinuousStatesChanged = flags[3] ? fmi2True : fmi2False;
+    eventInfo->nextEventTimeDefined = flags[4] ? fmi2True : fmi2False;
+    eventInfo->nextEventTime = next;
+    return answer.status;
+}
+
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation)
+{
+    BEGIN(fmi2CompletedIntegratorStep, unsupported(instance, "fmi2CompletedIntegratorStep"))
+    NULL_ARRAYS(fmi2CompletedIntegratorStep, enterEventMode == NULL || terminateSimulation == NULL)
+    PyGILState_STATE gil = py.PyGILState_Ensure();
+    PyObject *args[1] = {py.PyLong_FromLong(noSetFMUStatePriorToCurrentPoint)};
+    Answer answer = ask(instance, "fmi2CompletedIntegratorStep", NULL, "fmi2_completed_integrator_step", args, 1, 3);
+    int flags[2] = {0, 0};
+    tuple_answer(answer, flags, 2, -1, NULL);
+    clear(&answer.value);
+    py.PyGILState_Release(gil);
+    *enterEventMode = flags[0] ? fmi2True : fmi2False;
+    *terminateSimulation = flags[1] ? fmi2True : fmi2False;
+    return answer.status;
 }
 
 /* ---- status inquiries (doStep is never asynchronous) ---------------------------------------------------- */

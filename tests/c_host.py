@@ -19,10 +19,10 @@ _TOYS: dict[str, Path] = {}
 
 def toy_fmus(folder: Path) -> dict[str, Path]:
     """The FMUs of tests/fixtures/emcosim_toy_derivatives.py (known derivatives), built once per test
-    session with build.build_fmus into `folder` (the first caller's)."""
+    session with fmus.build.build_fmus into `folder` (the first caller's)."""
     if not _TOYS:
-        import build
-        _TOYS.update(build.build_fmus({"DerivativeIntegrator": TOYS, "DerivativeGain": TOYS}, folder))
+        from fmus.build import build_fmus
+        _TOYS.update(build_fmus({"DerivativeIntegrator": TOYS, "DerivativeGain": TOYS}, folder))
     return dict(_TOYS)
 
 

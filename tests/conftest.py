@@ -1,8 +1,7 @@
-"""Session fixtures: the FMUs, built once per test session by build.py into a temporary folder."""
+"""Session fixtures: the FMUs, built once per test session (fmus.build, a no-op when build/fmus is up to date)."""
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -14,24 +13,24 @@ if str(ROOT) not in sys.path:
 
 
 @pytest.fixture(scope="session")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    """Model identifier -> path of the freshly built FMU."""
-    import build
-
-    return build.build(tmp_path_factory.mktemp("fmus"), force=True, verbose=False)
-
-
-@pytest.fixture(scope="session")
 def fmu_dir() -> Path:
-    """build/fmus, brought up to date with build.py (a no-op when nothing changed); or
+    """build/fmus, brought up to date once per test session (a no-op when nothing changed); or
     $EMCOSIM_FMU_DIR as it is. Missing FMUs fail the tests that need them (never a silent skip)."""
-    import build
+    from fmus import build
 
     if "EMCOSIM_FMU_DIR" in os.environ:
         d = Path(os.environ["EMCOSIM_FMU_DIR"])
     else:
-        d = build.DEFAULT_DEST
-        subprocess.run([sys.executable, str(ROOT / "build.py")], cwd=ROOT, check=True, capture_output=True)
+        d = build.default_dest()
+        build.build(d, verbose=False)
     missing = [m for m in build.FMUS if not (d / f"{m}.fmu").is_file()]
     assert not missing, f"FMUs not built: {missing} in {d}"
     return d
+
+
+@pytest.fixture(scope="session")
+def fmus(fmu_dir) -> dict[str, Path]:
+    """Model identifier -> path of the session's FMU (in `fmu_dir`)."""
+    from fmus import build
+
+    return {m: fmu_dir / f"{m}.fmu" for m in build.FMUS}

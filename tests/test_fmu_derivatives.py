@@ -21,7 +21,7 @@ POLYNOMIALS = {"MEMS": ([(25.0, 2e5, -3e10), (26.0, -1e5, 4e10), (24.0, 0.0, 0.0
                "Maglev": ([(0.9, 0.5, -20.0), (0.95, -0.3, 10.0), (0.9, 0.0, 0.0)], 1e-3)}
 
 
-@pytest.mark.parametrize("identifier,expected", [("MEMS", (True, 2, False)), ("Maglev", (True, 2, False)),
+@pytest.mark.parametrize("identifier,expected", [("MEMS", (True, 2, True)), ("Maglev", (True, 2, True)),
                                                  ("Reference", (False, 3, False))]
                          + [(c, (True, 1, True)) for c in CONTROLLERS])
 def test_capabilities_are_declared(fmus, identifier, expected):

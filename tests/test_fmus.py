@@ -27,6 +27,7 @@ from components.proposition1 import Proposition1
 from components.proposition2 import Proposition2
 from components.theorem2 import Theorem2
 from components.theorem3 import Theorem3
+from fmus.variables import RATE_UNITS
 
 PLANTS = {"MEMS": mems, "Maglev": maglev}
 CONTROLLERS = {"MEMS_Proposition1": mems, "MEMS_Theorem2": mems, "Maglev_Proposition2": maglev,
@@ -113,7 +114,9 @@ def test_capabilities_and_structure(fmus):
                 assert unknown.dependencies == [], f"{identifier}.{unknown.variable.name} must not depend on inputs"
             else:
                 assert unknown.dependencies == inputs
-        assert {u.variable.name for u in md.initialUnknowns} == {u.variable.name for u in md.outputs}
+        derivatives = {u.variable.name for u in md.derivatives}
+        assert derivatives == ({f"der({n})" for n in ("q", "p", "x_e")} if identifier in PLANTS else set())
+        assert {u.variable.name for u in md.initialUnknowns} == {u.variable.name for u in md.outputs} | derivatives
 
 
 @pytest.mark.parametrize("family", ["MEMS", "Maglev"])
@@ -148,7 +151,11 @@ def test_plant_interface(fmus, identifier):
     assert (v["u"].causality, v["u"].unit) == ("input", module.INPUT[1])
     assert (v["H"].causality, v["H"].unit) == ("output", "J")
     assert v["rtol"].causality == "parameter"
-    assert set(v) == set(module.PARAMETERS) | set(module.STATES) | {f"{n}_0" for n in module.STATES} | {"u", "H", "rtol"}
+    for name, (unit, _) in module.STATES.items():            # Model Exchange: der(x) of each state x
+        der = v[f"der({name})"]
+        assert (der.causality, der.derivative.name, der.unit) == ("local", name, RATE_UNITS[unit])
+    assert set(v) == (set(module.PARAMETERS) | set(module.STATES) | {f"{n}_0" for n in module.STATES}
+                      | {f"der({n})" for n in module.STATES} | {"u", "H", "rtol"})
 
 
 def test_plant_initial_states(fmus):
@@ -636,8 +643,9 @@ def test_module_of_our_name_loaded_by_another_fmu_is_refused_in_one_message(fmus
     assert f"module {script} is already loaded" in messages[0][1] and "not this FMU's" in messages[0][1]
 
 
-def test_model_exchange_instantiation_is_refused_with_a_message(fmus):
-    """The FMUs are Co-Simulation FMUs: fmi2Instantiate for Model Exchange is NULL with one message."""
+def test_unknown_fmu_type_is_refused_with_a_message(fmus):
+    """fmi2Instantiate with an fmuType that is neither fmi2ModelExchange nor fmi2CoSimulation is NULL with
+    one message."""
     import ctypes
 
     from fmpy import extract
@@ -649,10 +657,10 @@ def test_model_exchange_instantiation_is_refused_with_a_message(fmus):
     callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
     callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier="MEMS")
-    component = fmu.fmi2Instantiate(b"me", 0, md.guid.encode(), (Path(unzipdir) / "resources").as_uri().encode(),
+    component = fmu.fmi2Instantiate(b"other", 2, md.guid.encode(), (Path(unzipdir) / "resources").as_uri().encode(),
                                     ctypes.byref(callbacks), 0, 0)
     assert component is None
-    assert messages == [(ERROR, "fmi2Instantiate: this FMU is for Co-Simulation only (fmuType 0)")]
+    assert messages == [(ERROR, "fmi2Instantiate: fmuType 2 is neither fmi2ModelExchange (0) nor fmi2CoSimulation (1)")]
 
 
 # ---- FMI 2.0 derivative functions (answered by the loader, emcosim_fmu_loader.c) ------------------------
@@ -777,7 +785,7 @@ def test_declared_derivative_capabilities_answer_and_undeclared_ones_refuse(fmus
 
 # ---- build and docs ------------------------------------------------------------------------------
 def test_build_is_reproducible_and_skips_when_unchanged(fmus, tmp_path, capsys):
-    import build
+    from fmus import build
 
     again = build.build(tmp_path, force=True, verbose=False)
     for identifier, path in fmus.items():
@@ -792,7 +800,7 @@ def test_build_is_reproducible_and_skips_when_unchanged(fmus, tmp_path, capsys):
             names = z.namelist()
             script = z.read("resources/slavemodule.txt").decode()
         assert script == f"{package}_{identifier}" and f"resources/{script}.py" in names
-        assert {f"resources/{package}/components/plant_step.py", f"resources/{package}/em_fmu_framework.py",
+        assert {f"resources/{package}/components/plant_step.py", f"resources/{package}/fmus/slave.py",
                 f"resources/{package}/pythonfmu/fmi2slave.py", "resources/emcosim_fmu.txt"} <= set(names)
         # one platform, whose binaries are the loader and pythonfmu's library: no win64 binary that the
         # modelDescription's claims would not hold for

@@ -223,10 +223,10 @@ def test_build_packs_every_scenario_into_a_runnable_ssp(fmu_dir, tmp_path):
     same bytes, and an archive runs on its own (its FMUs inside) with the results of the folder."""
     import zipfile
 
-    import build
-    archives = build.pack_scenarios(fmu_dir, tmp_path / "a", verbose=False)
+    from emcosim.paper.scenarios import pack_archives
+    archives = pack_archives(fmu_dir, tmp_path / "a", verbose=False)
     assert sorted(a.stem for a in archives) == sorted(SCENARIOS)
-    again = build.pack_scenarios(fmu_dir, tmp_path / "b", verbose=False)
+    again = pack_archives(fmu_dir, tmp_path / "b", verbose=False)
     assert [a.read_bytes() for a in archives] == [b.read_bytes() for b in again]
     ssp = tmp_path / "a" / "maglev_regulation_prop2.ssp"
     names = zipfile.ZipFile(ssp).namelist()

@@ -228,13 +228,13 @@ def _n_steps(name: str, stop_time: float | None) -> float:
 
 
 def ensure_fmus(out=sys.stderr) -> None:
-    """Build the FMUs with the project's build.py into build/fmus unless they are up to date with
-    the sources (build.py compares a fingerprint of every input: cheap when nothing changed)."""
-    import runpy
-    build = runpy.run_path(str(ROOT / "build.py"))
-    if not build["up_to_date"]():
-        print("building the FMUs (build.py) ...", file=out, flush=True)
-        build["build"](verbose=True)
+    """Build the FMUs into build/fmus (fmus.build) unless they are up to date with the sources (the build
+    compares a fingerprint of every input: cheap when nothing changed)."""
+    from fmus import build
+
+    if not build.up_to_date():
+        print("building the FMUs (fmus.build) ...", file=out, flush=True)
+        build.build(verbose=True)
 
 
 def write_figures(runs: dict[str, report.Run], out: Path) -> list[Path]:

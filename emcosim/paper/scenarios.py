@@ -234,6 +234,30 @@ def stale(root: Path = SCENARIOS) -> list[str]:
     return bad
 
 
+def pack_archives(fmu_dir: Path | str, dest: Path | str, verbose: bool = True) -> list[Path]:
+    """Pack every scenario of scenarios/ with the FMUs of `fmu_dir` into a self-contained SSP archive
+    dest/<name>.ssp (SystemStructure.ssd, its .ssv files, the FMUs under resources/), written like the
+    FMUs (sorted entries, fixed timestamps) so that the same inputs give the same bytes."""
+    import tempfile
+
+    from fmus.build import repack
+
+    from ..engine.ssp import pack_ssp
+
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    out = []
+    with tempfile.TemporaryDirectory(prefix="emcosim_ssp_") as work:
+        for folder in sorted(p for p in SCENARIOS.iterdir() if (p / "SystemStructure.ssd").is_file()):
+            raw = pack_ssp(folder, Path(work) / f"{folder.name}.ssp", fmu_dir=fmu_dir)
+            target = dest / raw.name
+            repack(raw, target)
+            out.append(target)
+            if verbose:
+                print(f"packed      {target}  ({target.stat().st_size / 1024:.0f} kB)")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="only check that scenarios/ is up to date")
@@ -250,3 +274,4 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+

@@ -13,25 +13,11 @@ from .harness import ALL, RESULTS_JSON, ROOT, TALLY, WorkerProcess
 
 
 @pytest.fixture(scope="session")
-def reliability_fmus(tmp_path_factory) -> dict[str, Path]:
-    """Model identifier -> FMU, copied into a session folder (a rebuild of build/fmus by someone else
-    during the run cannot swap files under the suite). Source: $EMCOSIM_FMU_DIR, else build/fmus if
-    its build stamp matches the current sources, else a fresh build."""
-    import build
-
+def reliability_fmus(fmu_dir, tmp_path_factory) -> dict[str, Path]:
+    """Model identifier -> FMU of the session's build, copied into a session folder (a rebuild of
+    build/fmus by someone else during the run cannot swap files under the suite)."""
     target = tmp_path_factory.mktemp("reliability_fmus")
-    if "EMCOSIM_FMU_DIR" in os.environ:
-        source = Path(os.environ["EMCOSIM_FMU_DIR"])
-    else:
-        source = ROOT / "build" / "fmus"
-        try:
-            stamp = json.loads((source / build.STAMP).read_text())
-            fresh = stamp.get("fingerprint") == build.fingerprint()
-        except (OSError, ValueError):
-            fresh = False
-        if not fresh:
-            source = tmp_path_factory.mktemp("fmus_built")
-            build.build(source, force=True, verbose=False)
+    source = fmu_dir
     missing = [m for m in ALL if not (source / f"{m}.fmu").is_file()]
     if missing:
         pytest.fail(f"FMUs missing in {source}: {missing}")

@@ -1,4 +1,4 @@
-"""Adapter: a plant of components/ (MEMS, maglev) as an FMI 2.0 co-simulation slave.
+"""Adapter: a plant of components/ (MEMS, maglev) as an FMI 2.0 slave, for Co-Simulation and Model Exchange.
 
 Variables: every entry of the plant module's PARAMETERS, the initial state q_0, p_0, x_e_0, the
 integration tolerance rtol (parameters); the input u; the outputs q, p, x_e (states: no direct
@@ -8,6 +8,11 @@ the polynomial u + u' tau + u'' tau^2 / 2. Output derivatives (orders 1 and 2) o
 exact ones of eq. (open-loop elecmech) at the current state (PlantStepper.time_derivatives); the input
 they use is the polynomial's value and rate at the end of the last step until the master sets u again.
 The FMU state includes the stepper's proposed substep and that end-of-step input.
+
+Model Exchange: the continuous states are q, p, x_e with der(q), der(p), der(x_e) = f(eta, u) of eq.
+(open-loop elecmech) (components.plant_step's scalar model, the one the integrator of doStep uses); their
+Jacobian with respect to the states and u (fmi2GetDirectionalDerivative) is F hess H and g, exact; the one
+event indicator is the margin to the boundary of the admissible domain (components: domain_margin).
 """
 from __future__ import annotations
 
@@ -16,13 +21,18 @@ from typing import ClassVar
 
 import numpy as np
 
-from .components import catalog
-from .components.ph_plant import DomainError, EMPlant
-from .components.plant_step import DEFAULT_RTOL, RTOL_RANGE, PlantStepper, StepFailure
-from .em_fmu_framework import EMSlave
+from components import catalog
+from components.ph_plant import DomainError, EMPlant
+from components.plant_step import DEFAULT_RTOL, RTOL_RANGE, PlantStepper, StepFailure, nominal_scale
+
+from .slave import EMSlave
+from .variables import RATE_UNITS
 
 STATE_NAMES = ("q", "p", "x_e")
 OUTPUT_INDEX = {n: i for i, n in enumerate((*STATE_NAMES, "H"))}   # output -> its entry in time_derivatives' rows
+# what each state derivative depends on, from the structure of eq. (open-loop elecmech) for a constant mass:
+# q' = p/m, p' = -V'(q) - 1/2 Psi'(q) x_e^2 - R_m p/m, x_e' = (J_e - R_e) Psi(q) x_e + G_e u
+DERIVATIVE_DEPENDENCIES = {"q": ["p"], "p": ["q", "p", "x_e"], "x_e": ["q", "x_e", "u"]}
 
 
 class PlantSlave(EMSlave):
@@ -33,6 +43,8 @@ class PlantSlave(EMSlave):
     can_interpolate_inputs = True
     max_input_derivative_order = 2
     max_output_derivative_order = 2
+    provides_directional_derivative = True
+    number_of_event_indicators = 1                              # the margin to the domain's boundary
 
     def declare(self) -> None:
         module = self.plant_module
@@ -48,17 +60,23 @@ class PlantSlave(EMSlave):
         name, unit, description = module.INPUT
         self.input(name, self.input_start, unit, description)
         initial = [f"{n}_0" for n in STATE_NAMES]
+        nominal = nominal_scale(catalog.plant(self.model_identifier))
         for i, name in enumerate(STATE_NAMES):
             unit, description = module.STATES[name]
-            self.output(name, unit, description, (lambda i=i: self.state()[i]), [], [f"{name}_0"])
+            self.output(name, unit, description, (lambda i=i: self.state()[i]), [], [f"{name}_0"],
+                        nominal=float(nominal[i]))
         self.output("H", "J", "stored energy H(q, p, x_e) = p^2/(2 m) + V(q) + H_e(q, x_e), eq. (open-loop elecmech)",
                     self.energy, [], initial + list(module.PARAMETERS))
+        for i, name in enumerate(STATE_NAMES):
+            self.state_derivative(name, RATE_UNITS[module.STATES[name][0]], (lambda i=i: self.rates()[i]),
+                                  DERIVATIVE_DEPENDENCIES[name], None)
         self.plant: EMPlant | None = None
         self.stepper: PlantStepper | None = None
         self.eta: tuple[float, float, float] | None = None
         self._H: float | None = None
         self.u_end: tuple[float, float] | None = None          # (u, u') at the end of the last step
         self._rates: tuple | None = None                        # (key, time derivatives) of the last request
+        self._f: tuple | None = None                            # (key, f(eta, u)) of the last Model Exchange request
 
     # ---- outputs ------------------------------------------------------------------------------
     def initial(self) -> tuple[float, float, float]:
@@ -110,6 +128,79 @@ class PlantSlave(EMSlave):
         self.u_end = (u + h * (du + 0.5 * h * d2u), du + h * d2u)
         return True
 
+    # ---- Model Exchange (contract: model_exchange.ModelExchangeFunctions) --------------------------------
+    def model(self):
+        """components.plant_step's scalar model of the current parameters (f, its Jacobian)."""
+        if self.stepper is None:                                # before initialization: parameters may change
+            return PlantStepper(self.make_plant(), self.values["rtol"]).model
+        return self.stepper.model
+
+    def rates(self) -> tuple[float, float, float]:
+        """(q', p', x_e') = f(eta, u), eq. (open-loop elecmech), computed once per state and input."""
+        key = (self.state(), self.values["u"])
+        if self._f is None or self._f[0] != key or self.stepper is None:
+            (q, p, x), u = key
+            self._f = (key, self.model().f(q, p, x, u))
+        return self._f[1]
+
+    def continuous_states(self) -> list[float]:
+        return list(self.state())
+
+    def set_continuous_states(self, x: list[float]) -> None:
+        self.eta = (x[0], x[1], x[2])
+        self._H = None
+
+    def state_derivatives(self) -> list[float]:
+        return list(self.rates())
+
+    def event_indicators(self) -> list[float]:
+        plant = self.plant if self.plant is not None else self.make_plant()
+        return [float(plant.domain_margin(self.state()))]
+
+    def nominals(self) -> list[float]:
+        plant = self.plant if self.plant is not None else self.make_plant()
+        return [float(v) for v in nominal_scale(plant)]
+
+    def domain_problem(self) -> str:
+        plant = self.plant if self.plant is not None else self.make_plant()
+        eta = np.array(self.state())
+        if plant.domain_margin(eta) > 0 and np.all(np.isfinite(eta)):
+            return ""
+        try:
+            plant.check_state(eta)
+        except DomainError as exc:
+            return str(exc)
+        return f"{plant.name}: the state (q, p, x_e) = {tuple(eta)} reached the boundary of the admissible domain"
+
+    def directional_derivative(self, unknowns: list[str], knowns: list[str], seeds: list[float]) -> list[float]:
+        """The exact Jacobian of (der(q), der(p), der(x_e), q, p, x_e, H) with respect to (q, p, x_e, u) along
+        the seeds: df/deta = F hess H and df/du = g of eq. (open-loop elecmech), grad H for H."""
+        (q, p, x), u = self.state(), self.values["u"]
+        model = self.model()
+        _, J = model.f_jac(q, p, x, u)
+        if len(J) == 6:                                         # the scalar model's nonzero entries
+            J_qp, J_pq, J_pp, J_px, J_xq, J_xx = J
+            J = ((0.0, J_qp, 0.0), (J_pq, J_pp, J_px), (J_xq, 0.0, J_xx))
+        v = [0.0, 0.0, 0.0]
+        du = 0.0
+        for name, seed in zip(knowns, seeds):
+            if name == "u":
+                du += seed
+            else:
+                v[STATE_NAMES.index(name)] += seed
+        out = []
+        for name in unknowns:
+            if name.startswith("der("):
+                i = STATE_NAMES.index(name[4:-1])
+                out.append(J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2] + (model.g_x * du if i == 2 else 0.0))
+            elif name == "H":
+                plant = self.plant if self.plant is not None else self.make_plant()
+                grad = plant.grad_H(np.array([q, p, x]))
+                out.append(float(grad[0] * v[0] + grad[1] * v[1] + grad[2] * v[2]))
+            else:
+                out.append(v[STATE_NAMES.index(name)])
+        return out
+
     # ---- FMU state ----------------------------------------------------------------------------
     def save_internal(self) -> dict:
         if self.stepper is None:
@@ -124,7 +215,7 @@ class PlantSlave(EMSlave):
             self.u_end = None if internal["u_end"] is None else tuple(internal["u_end"])
         self._H = None
 
-    # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
+    # ---- FMI 2.0 derivatives (contract: derivatives.DerivativeFunctions) --------------------------------
     def input_rates(self) -> tuple[float, float]:
         """(u', u'') the master set for the current communication point (0 where none was set)."""
         d = self.input_derivatives.get("u")

@@ -1,4 +1,5 @@
-"""Adapter: the reference generators of components.references as one FMI 2.0 co-simulation slave.
+"""Adapter: the reference generators of components.references as one FMI 2.0 slave (Co-Simulation and Model
+Exchange: outputs that are functions of time, no states).
 
 Integer parameter kind selects the generator (0 constant, 1 sinusoid, 2 smooth_step); every parameter
 of the three generators is a parameter of the FMU (names from their PARAMETERS). The outputs are the
@@ -8,11 +9,12 @@ q*^(k), q_star_dddot of order k is q*^(3+k) (components.references.Reference.der
 """
 from __future__ import annotations
 
-from .components import catalog, references
-from .em_fmu_framework import REFERENCE_JET, EMSlave
+from components import catalog, references
+
+from .slave import EMSlave
 
 KIND_CODES = catalog.REFERENCE_KINDS
-OUTPUTS = REFERENCE_JET
+OUTPUTS = references.JET_VARIABLES
 OUTPUT_INDEX = {name: k for k, (name, _, _) in enumerate(OUTPUTS)}      # jet output -> its order k0
 
 
@@ -50,7 +52,7 @@ class ReferenceSlave(EMSlave):
     def step(self, t: float, h: float) -> bool:
         return True
 
-    # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
+    # ---- FMI 2.0 derivatives (contract: derivatives.DerivativeFunctions) --------------------------------
     def output_derivative(self, name: str, order: int) -> float:
         """d^order/dt^order of the jet output `name` (the jet's entry k0 = q*^(k0)): q*^(k0 + order)."""
         return self.output_derivatives([(name, order)])[0]

@@ -1,4 +1,4 @@
-"""Adapter: a static controller of components/ as an FMI 2.0 co-simulation slave.
+"""Adapter: a static controller of components/ as an FMI 2.0 slave (Co-Simulation and Model Exchange: no states).
 
 Variables: the plant's physical parameters (the controller's model of the plant, same names as in the
 plant FMU) and the gains of components.catalog.GAINS (parameters); the plant outputs q, p, x_e and,
@@ -19,14 +19,15 @@ from typing import ClassVar
 
 import numpy as np
 
-from .components import catalog, certificates
-from .components.controller import Controller
-from .components.ph_plant import Jet
-from .em_fmu_framework import REFERENCE_JET as JET, EMSlave
-from .pythonfmu.enums import Fmi2Status
+from components import catalog, certificates
+from components.controller import Controller
+from components.ph_plant import Jet
+from components.references import JET_VARIABLES as JET
+
+from .pythonfmu_workarounds import Fmi2Status
+from .slave import EMSlave
 
 STATE_NAMES = ("q", "p", "x_e")
-
 
 
 class ControllerSlave(EMSlave):
@@ -137,7 +138,7 @@ class ControllerSlave(EMSlave):
         self.log_error(f"{self._u_error} (doStep at t = {t:.9g} s)")
         return False
 
-    # ---- FMI 2.0 derivatives (contract: em_fmu_framework.EMSlave) -------------------------------------
+    # ---- FMI 2.0 derivatives (contract: derivatives.DerivativeFunctions) --------------------------------
     def u_derivative(self, directions: list[float]) -> float:
         """sum_j du/d(input_j) directions_j at the current inputs (ValueError with the reason)."""
         values = self.values

@@ -1,0 +1,132 @@
+"""FMU state of an emcosim FMU (fmi2GetFMUstate, fmi2SetFMUstate, fmi2FreeFMUstate and serialization):
+a snapshot of every variable plus what an adapter keeps outside them (`save_internal` /
+`restore_internal`), so a master can roll a step back exactly. A state is checked before it is applied
+(this FMU's, this build's, every variable with a number) and applied all or nothing; serialized states
+carry a header, a format version and a sha256 checksum that deserialization checks (it catches
+accidents, a cut or changed file, not intent).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+
+from . import BUILD
+from .status import DONE as _OK, ERROR, OK
+
+# serialized FMU state: header, format version (1 byte), sha256 of the payload (32 bytes), JSON payload
+STATE_HEADER = b"emcosim FMU state\n"
+STATE_FORMAT = 1
+STATE_KEYS = {"model", "build", "values", "time", "initialized", "input_derivatives", "internal"}
+
+
+class StateFunctions:
+    """The FMU-state functions of EMSlave (slave.py); adapters implement `save_internal` and
+    `restore_internal` when they keep state outside their variables."""
+
+    def save_internal(self) -> dict:
+        return {}
+
+    def restore_internal(self, internal: dict) -> None:
+        pass
+
+    def fmi2_get_fmu_state(self) -> tuple[int, dict | None, str]:
+        try:
+            return OK, self._snapshot(), ""
+        except Exception as exc:                                      # noqa: BLE001 - reported as the status
+            return ERROR, None, f"{self.model_identifier}: fmi2GetFMUstate failed: {type(exc).__name__}: {exc}"
+
+    def fmi2_set_fmu_state(self, state: dict) -> tuple[int, str]:
+        """Apply a state after checking it is this FMU's and complete; all or nothing."""
+        where = f"{self.model_identifier}: fmi2SetFMUstate"
+        problem = self._state_problem(state)
+        if problem:
+            return ERROR, f"{where}: {problem}; the instance keeps its state"
+        before = self._snapshot()
+        try:
+            self._apply_state(state)
+        except Exception as exc:                                      # noqa: BLE001 - rolled back, reported
+            try:
+                self._apply_state(before)
+            except Exception as again:                                # noqa: BLE001
+                return ERROR, f"{where}: {type(exc).__name__}: {exc}; restoring the previous state failed too: {again}"
+            return ERROR, (f"{where}: the state could not be applied ({type(exc).__name__}: {exc}); the instance "
+                           "keeps its state")
+        return _OK
+
+    def fmi2_serialize_fmu_state(self, state: dict) -> tuple[int, bytes, str]:
+        """header + format version + sha256(payload) + payload (JSON)."""
+        try:
+            payload = json.dumps(state, sort_keys=True).encode()
+        except (TypeError, ValueError) as exc:
+            return ERROR, b"", f"{self.model_identifier}: fmi2SerializeFMUstate failed: {exc}"
+        return OK, STATE_HEADER + bytes([STATE_FORMAT]) + hashlib.sha256(payload).digest() + payload, ""
+
+    def fmi2_deserialize_fmu_state(self, data: bytes) -> tuple[int, dict | None, str]:
+        """The state of serialized bytes, after checking header, format version, checksum and content."""
+        where = f"{self.model_identifier}: fmi2DeSerializeFMUstate"
+        start = len(STATE_HEADER) + 1 + 32
+        if len(data) < start or not data.startswith(STATE_HEADER):
+            return ERROR, None, f"{where}: {len(data)} bytes that are not a serialized emcosim FMU state"
+        if data[len(STATE_HEADER)] != STATE_FORMAT:
+            return ERROR, None, (f"{where}: format version {data[len(STATE_HEADER)]} of the serialized state; "
+                                 f"this FMU reads version {STATE_FORMAT}")
+        payload = data[start:]
+        if hashlib.sha256(payload).digest() != data[start - 32:start]:
+            return ERROR, None, f"{where}: checksum mismatch: the bytes were changed or cut"
+        try:
+            state = json.loads(payload)
+            state["input_derivatives"] = {name: {int(order): value for order, value in orders.items()}
+                                          for name, orders in state["input_derivatives"].items()}
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            return ERROR, None, f"{where}: unreadable state: {type(exc).__name__}: {exc}"
+        problem = self._state_problem(state)
+        if problem:
+            return ERROR, None, f"{where}: {problem}"
+        return OK, state, ""
+
+    def _snapshot(self) -> dict:
+        return {"model": self.model_identifier, "build": BUILD, "values": dict(self.values), "time": self.time,
+                "initialized": self.initialized,
+                "input_derivatives": {k: dict(v) for k, v in self.input_derivatives.items()},
+                "internal": self.save_internal()}
+
+    def _state_problem(self, state) -> str:
+        """'' if `state` can be applied to this FMU, else what is wrong with it."""
+        if not isinstance(state, dict) or set(state) != STATE_KEYS:
+            return "not a state of an emcosim FMU (wrong content)"
+        if state["model"] != self.model_identifier or state["build"] != BUILD:
+            return (f"a state of {state['model']} (build {str(state['build'])[:12]}), not of this FMU "
+                    f"{self.model_identifier} (build {BUILD[:12]})")
+        values = state["values"]
+        if not isinstance(values, dict) or set(values) != set(self.values):
+            return "its variables are not this FMU's"
+        for name, value in values.items():
+            kind = int if self.by_name[name].integer else (int, float)
+            if isinstance(value, bool) or not isinstance(value, kind):
+                return f"its value of {name} is not a number of the variable's type: {value!r}"
+        if isinstance(state["time"], bool) or not isinstance(state["time"], (int, float)) or not math.isfinite(state["time"]):
+            return f"its time {state['time']!r} is not a finite number"
+        if not isinstance(state["initialized"], bool) or not isinstance(state["internal"], dict):
+            return "it is incomplete"
+        derivatives = state["input_derivatives"]
+        inputs = set(self._real_inputs.values())
+        if not isinstance(derivatives, dict) or not all(
+                name in inputs and isinstance(orders, dict)
+                and all(isinstance(k, int) and isinstance(v, (int, float)) for k, v in orders.items())
+                for name, orders in derivatives.items()):
+            return "its input derivatives are not this FMU's"
+        return ""
+
+    def _apply_state(self, state: dict) -> None:
+        changed = any(self.values[k] != v for k, v in state["values"].items()
+                      if self.by_name[k].causality == "parameter")
+        self.values.update(state["values"])
+        self.time = float(state["time"])
+        if state["initialized"] and (changed or not self.initialized):
+            self.initialize()
+        self.initialized = state["initialized"]
+        self.input_derivatives = {name: {int(order): float(value) for order, value in orders.items()}
+                                  for name, orders in state["input_derivatives"].items()}
+        self.inputs_changed()                      # drop what depended on the inputs, then restore the state
+        self.restore_internal(state["internal"])

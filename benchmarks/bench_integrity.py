@@ -3,7 +3,7 @@ the median of each): the master's own overhead per FMU per communication step, a
 a run, for
 
   memory     rows kept in memory (the Python API's default), non-finite check on
-  streamed   rows streamed to a CSV through results.ResultFile (what `emcosim run` does)
+  streamed   rows streamed to a CSV through outputs.ResultFile (what `emcosim run` does)
   unchecked  rows in memory, the non-finite check switched off (monkeypatched: the cost of the check)
 
 on the toy loop of the tests (two trivial FMUs: the master's own cost dominates) and a paper scenario.
@@ -23,16 +23,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from emcosim.engine import master                                             # noqa: E402
-from emcosim.engine.results import ResultFile                                 # noqa: E402
+from emcosim.engine.transfer import Transfer                                  # noqa: E402
+from emcosim.engine.outputs import ResultFile                                  # noqa: E402
 from emcosim.engine.ssd import read_scenario                                  # noqa: E402
 from tests.integrity_helpers import build_toys, toy_loop                      # noqa: E402
 
 
 def one(scenario, mode: str, folder: Path, stop_time: float | None) -> tuple[float, float]:
     timing: dict = {}
-    original = master._Transfer._check_finite
+    original = Transfer.check_finite
     if mode == "unchecked":
-        master._Transfer._check_finite = lambda self: None
+        Transfer.check_finite = lambda self: None
     try:
         tic = time.perf_counter()
         if mode == "streamed":
@@ -42,7 +43,7 @@ def one(scenario, mode: str, folder: Path, stop_time: float | None) -> tuple[flo
             master.simulate(scenario, stop_time=stop_time, timing=timing)
         return time.perf_counter() - tic, timing["overhead_per_fmu_step"]
     finally:
-        master._Transfer._check_finite = original
+        Transfer.check_finite = original
 
 
 def main() -> None:

@@ -23,6 +23,12 @@ from pathlib import Path
 
 from .engine.errors import Interrupted, ScenarioError, SimulationError
 
+# the command line's names of the engine's options (the engine's messages name them as its API does)
+FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "--tolerance", "max_step": "--max-step",
+         "coupling": "--coupling", "coupling_order": "--coupling-order", "max_steps": "--max-steps",
+         "start_values": "--set", "max_bytes": "--ssp-max-size", "max_files": "--ssp-max-files",
+         "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver"}
+
 
 def scenario_dirs() -> list[Path]:
     """Where bare scenario names are looked up: ./scenarios, then the project's scenarios/."""
@@ -60,10 +66,10 @@ def main(argv: list[str] | None = None) -> int:
         with stopping.on_signals(graceful=args.command != "sweep"):
             return args.func(args)
     except Interrupted as exc:                     # stopped between two communication points
-        print(f"emcosim: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        print(f"emcosim: error: {error_line(exc)}", file=sys.stderr)
         return 128 + exc.signal
     except ScenarioError as exc:                   # includes SimulationError
-        print(f"emcosim: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        print(f"emcosim: error: {error_line(exc)}", file=sys.stderr)
         return 1
     except BrokenPipeError:                        # e.g. `emcosim info | head`
         return 0
@@ -74,6 +80,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:                       # anything unforeseen: still one line
         print(f"emcosim: error: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
+
+
+def error_line(exc: ScenarioError) -> str:
+    """The engine's error as one line, its options named by their flags, with the notes added on the way."""
+    return " ".join("; ".join([exc.describe(FLAGS), *getattr(exc, "__notes__", [])]).split())
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -120,6 +131,12 @@ def _parser() -> argparse.ArgumentParser:
                           "of the FMUs with states agree with their sources at its end, stable on stiff loops at "
                           "any step (third order; second where a source gives no derivatives; the run prints the trial steps). Default: the scenario's "
                           "(its emcosim:Coupling annotation; `emcosim info` shows it), else explicit")
+    run.add_argument("--interface-type", choices=("CoSimulation", "ModelExchange"), default="CoSimulation",
+                     help="CoSimulation (default): the master steps every FMU; ModelExchange: every FMU is "
+                          "instantiated for Model Exchange and their states are integrated as one ODE by scipy "
+                          "(--solver, at rtol --tolerance, default 1e-6), rows every --step-size")
+    run.add_argument("--solver", choices=("LSODA", "BDF", "Radau"),
+                     help="scipy's integrator of a ModelExchange run (default LSODA)")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
@@ -202,7 +219,7 @@ def _archive_options() -> argparse.ArgumentParser:
 
 
 def _limits(args):
-    from .engine.ssd import ArchiveLimits
+    from .engine.archive import ArchiveLimits
     return ArchiveLimits(max_bytes=int(args.ssp_max_size * 2**20), max_files=args.ssp_max_files,
                          allow_external=args.allow_external)
 
@@ -252,24 +269,27 @@ def default_record(scenario) -> list[str] | None:
     return names or None
 
 
-def _positive(value: float | None, option: str) -> None:
-    if value is not None and not value > 0:
-        raise ScenarioError(f"{option} {value:g}: must be a positive number")
+def run_options(args):
+    """The engine's RunOptions of `run` or `sweep`'s flags (checked there: one check for every command and the
+    Python API)."""
+    from .engine.options import MAX_STEPS, RunOptions
+
+    return RunOptions(stop_time=args.stop_time, step_size=args.step_size, tolerance=args.tolerance,
+                      max_step=getattr(args, "max_step", None), coupling=args.coupling,
+                      coupling_order=args.coupling_order, max_steps=getattr(args, "max_steps", None) or MAX_STEPS,
+                      interface_type=getattr(args, "interface_type", "CoSimulation"),
+                      solver=getattr(args, "solver", None))
 
 
 def cmd_run(args) -> int:
-    from .engine.master import MAX_STEPS, simulate
-    from .engine.results import Result, ResultFile, check_destination
+    from dataclasses import asdict
+
+    from .engine.master import simulate
+    from .engine.outputs import ResultFile, check_destination
+    from .engine.results import Result
     from .progress import ProgressBar
 
-    _positive(args.step_size, "--step-size")
-    _positive(args.tolerance, "--tolerance")
-    _positive(args.max_step, "--max-step")
-    if args.max_step is not None and args.tolerance is None:
-        raise ScenarioError("--max-step bounds the steps that --tolerance chooses; without --tolerance the "
-                            "steps are fixed: use --step-size")
-    _check_coupling(args)
-    implicit = None if args.coupling is None else args.coupling == "implicit"
+    options = run_options(args)                   # every setting checked before anything is read
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:
@@ -287,10 +307,8 @@ def cmd_run(args) -> int:
     result = failure = None
     try:
         with sink:
-            result = simulate(scenario, stop_time=args.stop_time, step_size=args.step_size,
-                              start_values=start_values, record=record, progress=bar, tolerance=args.tolerance,
-                              coupling_order=args.coupling_order, max_step=args.max_step,
-                              sink=sink, max_steps=args.max_steps or MAX_STEPS, implicit=implicit)
+            result = simulate(scenario, start_values=start_values, record=record, progress=bar, sink=sink,
+                              **asdict(options))
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
@@ -302,13 +320,15 @@ def cmd_run(args) -> int:
         plot_run(scenario, Result.from_csv(sink.final), args.plot, start_values)
     if failure is not None:
         if sink.final is not None:
-            failure.args = (f"{failure}; {sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}",)
+            failure.add_note(f"{sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}")
         raise failure
     print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {args.plot}" if args.plot else ""))
     if getattr(result, "step_control", None) is not None:
         print(f"{scenario.name}: {result.step_control.summary()}")
     if getattr(result, "implicit", None) is not None:
         print(f"{scenario.name}: {result.implicit.summary()}")
+    if getattr(result, "model_exchange", None) is not None:
+        print(f"{scenario.name}: {result.model_exchange.summary()}")
     return 0
 
 
@@ -329,7 +349,9 @@ def plot_run(scenario, result, path: str, start_values: dict) -> None:
 
 def cmd_export(args) -> int:
     from .engine.container import export_container
+    from .engine.options import RunOptions
 
+    RunOptions(step_size=args.step_size)          # checked as run's
     scenario = _read(args.scenario, args.fmu_dir, args)
     export_container(scenario, Path(args.output), step_size=args.step_size)
     print(f"{scenario.name}: container FMU written to {args.output}")
@@ -409,23 +431,14 @@ def cmd_certify(args) -> int:
     return 0
 
 
-def _check_coupling(args) -> None:
-    """--coupling implicit and --coupling-order exclude each other (run and sweep)."""
-    if args.coupling == "implicit" and args.coupling_order is not None:
-        raise ScenarioError(f"--coupling-order {args.coupling_order} sets the derivatives of explicit coupling; "
-                            "--coupling implicit passes none (it sets its inputs' polynomials itself, from the end of each step)")
-
-
 def cmd_sweep(args) -> int:
-    from .engine.results import OutputFolder, reason_of
+    from .engine.outputs import OutputFolder, reason_of
     from .paper.sweep import RowStream, parse_grid, parse_sample, security, sweep
     from .paper.sweep_output import plot, write_table
 
     grid = [parse_grid(g) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
-    _positive(args.step_size, "--step-size")
-    _positive(args.tolerance, "--tolerance")
-    _check_coupling(args)
+    run_options(args)                             # checked as run's
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
     scenario = _read(args.scenario, args.fmu_dir, args)
@@ -455,7 +468,7 @@ def cmd_sweep(args) -> int:
         kept = folder.abandon(reason_of(exc))
         note = f"{stream.rows} finished runs kept in {kept / 'sweep.csv'} ({out} was left as it was)"
         if isinstance(exc, ScenarioError):
-            exc.args = (f"{exc}; {note}",)
+            exc.add_note(note)
         else:
             print(f"emcosim: {note}", file=sys.stderr)
         raise

@@ -45,8 +45,8 @@ def test_certify_suggests_too(capsys):
 
 @pytest.mark.parametrize("args, message", [
     (["run", "mems_regulation_Dd0", "--step-size", "-1e-5"], "--step-size -1e-05: must be a positive number"),
-    (["run", "mems_regulation_Dd0", "--tolerance", "-.5"], "--tolerance -0.5: must be a positive number"),
-    (["run", "mems_regulation_Dd0", "--stop-time", "-2E-3"], "stop time -0.002 must be after the start time"),
+    (["run", "mems_regulation_Dd0", "--tolerance", "-.5"], "--tolerance -0.5: must be a number between 0 and 1"),
+    (["run", "mems_regulation_Dd0", "--stop-time", "-2E-3"], "--stop-time -0.002 must be after the start time"),
     (["run", "mems_regulation_Dd0", "--max-step", "1e-4"], "--max-step bounds the steps that --tolerance chooses"),
 ])
 def test_negative_numbers_are_parsed_then_refused_clearly(args, message, capsys):

@@ -19,8 +19,9 @@ from fmpy import extract, read_model_description
 from emcosim.engine import coupling
 from emcosim.engine.errors import ScenarioError
 from emcosim.engine.master import Simulation, simulate
-from emcosim.engine.ssd import (Component, Connection, Connector, Parameter, Scenario, parameter_set_xml,
-                                read_scenario, system_structure_xml)
+from emcosim.engine.plan import make_plan
+from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
+from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
 
 from tests import toy_fmus
 
@@ -178,19 +179,19 @@ def test_connection_orders_follow_the_declarations(make):
     s = make([("ref", "sine", SINE, True, 3), ("plant", "dynamic", DYNAMIC, True, 1), ("ctrl", "static", STATIC, False, 2)],
              [("ref.y", "ctrl.u1"), ("plant.x", "ctrl.u2"), ("ctrl.y", "plant.u")])
     with Simulation(s) as sim:
-        plan = sim._plan(None, sim.instances)
+        plan = make_plan(sim.scenario, sim.instances, sim.connections, None)
         orders = coupling.connection_orders(sim.instances, sim.connections, plan.level, plan.depends)
         assert orders == {"ctrl.u1": 0, "ctrl.u2": 0, "plant.u": 0}      # ctrl does not interpolate
     s = make([("ref", "sine", SINE, True, 3), ("plant", "dynamic", DYNAMIC, True, 1), ("ctrl", "static", STATIC, True, 2)],
              [("ref.y", "ctrl.u1"), ("plant.x", "ctrl.u2"), ("ctrl.y", "plant.u")])
     with Simulation(s) as sim:
-        plan = sim._plan(None, sim.instances)
+        plan = make_plan(sim.scenario, sim.instances, sim.connections, None)
         orders = coupling.connection_orders(sim.instances, sim.connections, plan.level, plan.depends)
         assert orders == {"ctrl.u1": 3, "ctrl.u2": 1, "plant.u": 1}      # y' only: x gives order 1
         assert coupling.connection_orders(sim.instances, sim.connections, plan.level, plan.depends, 0) == \
             {"ctrl.u1": 0, "ctrl.u2": 0, "plant.u": 0}
-        with pytest.raises(ScenarioError, match="coupling order"):
-            coupling.connection_orders(sim.instances, sim.connections, plan.level, plan.depends, 7)
+    with pytest.raises(ScenarioError, match="coupling_order 7: must be an integer from 0 to 3"):
+        simulate(s, coupling_order=7)                     # refused before any FMU is loaded (options.check)
 
 
 def test_fmus_without_derivatives_run_as_a_plain_hold_master(fmu_dir, tmp_path):

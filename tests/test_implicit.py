@@ -12,7 +12,8 @@ import pytest
 
 from emcosim.engine.errors import ScenarioError, SimulationError
 from emcosim.engine.master import Simulation, simulate
-from emcosim.engine.ssd import read_scenario, system_structure_xml
+from emcosim.engine.ssd import read_scenario
+from emcosim.engine.ssd_writer import system_structure_xml
 from tests.test_coupling import DYNAMIC, STATIC, loop, make, toy_library  # noqa: F401 - fixtures
 from tests.test_scenarios import ROOT, TIGHT, references  # noqa: F401 - fixture
 
@@ -32,7 +33,7 @@ def test_a_step_is_a_radau_step_of_the_loop(make, k):
     is damped by 0.096 per step (explicit coupling multiplies it by about -9: it diverges)."""
     h = 0.01
     s = loop(make, k=k, step_size=h)
-    r = simulate(s, record=["plant.x"], implicit=True)
+    r = simulate(s, record=["plant.x"], coupling="implicit")
     expected = radau(k * h) ** np.arange(len(r))
     # the iteration stops where the inputs agree to ITERATION_TOL of their largest magnitude (|k| x0)
     np.testing.assert_allclose(r["plant.x"], expected, rtol=1e-5, atol=1e-6)
@@ -53,7 +54,7 @@ def test_a_target_taking_first_derivatives_only_gets_chords(make):
     s = make([("plant", "dynamic", DYNAMIC, True, 3), ("ctrl", "static", STATIC, True, 3)],
              [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")],
              {"ctrl": {"k1": k}, "plant": {"x0": 1.0, "input_order": 1.0}}, 0.2, h)
-    r = simulate(s, record=["plant.x"], implicit=True)
+    r = simulate(s, record=["plant.x"], coupling="implicit")
     np.testing.assert_allclose(r["plant.x"], trapezoidal(k * h) ** np.arange(len(r)), rtol=1e-5, atol=1e-6)
 
 
@@ -62,22 +63,23 @@ def test_sources_without_derivatives_give_chords(make):
     h, k = 0.01, -3.0
     s = make([("plant", "dynamic", DYNAMIC, True, 0), ("ctrl", "static", STATIC, True, 0)],
              [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")], {"ctrl": {"k1": k}, "plant": {"x0": 1.0}}, 0.2, h)
-    r = simulate(s, record=["plant.x"], implicit=True)
+    r = simulate(s, record=["plant.x"], coupling="implicit")
     np.testing.assert_allclose(r["plant.x"], trapezoidal(k * h) ** np.arange(len(r)), rtol=1e-6)
 
 
 def test_global_error_falls_at_order_3(make):
     errors = []
     for h in (0.1, 0.05, 0.025):
-        r = simulate(loop(make, step_size=h), record=["plant.x"], implicit=True)
+        r = simulate(loop(make, step_size=h), record=["plant.x"], coupling="implicit")
         errors.append(np.max(np.abs(r["plant.x"] - np.exp(-r.time))))
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all(np.abs(orders - 3.0) < 0.2), (errors, orders)
 
 
 def test_implicit_takes_no_coupling_order(make):
-    with pytest.raises(ScenarioError, match="implicit coupling chooses"):
-        simulate(loop(make), implicit=True, coupling_order=2)
+    with pytest.raises(ScenarioError, match="coupling_order 2 sets the derivatives of explicit coupling; coupling "
+                                            "implicit passes none"):
+        simulate(loop(make), coupling="implicit", coupling_order=2)
 
 
 def test_mems_converges_at_third_order_where_explicit_coupling_is_unstable(fmu_dir, references):
@@ -95,7 +97,7 @@ def test_mems_converges_at_third_order_where_explicit_coupling_is_unstable(fmu_d
             r = sim.run(step_size=h, record=["plant.q"], start_values=TIGHT)
             assert r.implicit is not None
             errors.append(position_error(r.time, r["plant.q"], ref, 1.0))
-        explicit = sim.run(step_size=2e-5, record=["plant.q"], implicit=False)
+        explicit = sim.run(step_size=2e-5, record=["plant.q"], coupling="explicit")
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all(orders >= 2.6), (errors, orders)
     assert position_error(explicit.time, explicit["plant.q"], ref, 1.0) > 10 * errors[1]
@@ -150,7 +152,7 @@ def test_error_controlled_steps_recur_and_keep_their_jacobians(fmu_dir):
     sizes (measured: 29 for 21 sizes; 81 when none is kept)."""
     from emcosim.engine import stepcontrol
     s = read_scenario(ROOT / "scenarios" / "maglev_tracking_D-1_R0.82", fmu_dir=fmu_dir)
-    r = simulate(s, record=["plant.q"], tolerance=1e-3, implicit=True)
+    r = simulate(s, record=["plant.q"], tolerance=1e-3, coupling="implicit")
     h_max = (s.stop_time - s.start_time) / 50
     rungs = np.log(h_max / np.diff(r.time)) / np.log(stepcontrol.RUNG)
     off = np.flatnonzero(np.abs(rungs - np.round(rungs)) > 1e-6)

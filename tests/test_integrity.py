@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from emcosim.cli import main
-from emcosim.engine import master
+from emcosim.engine import binding, master
 from emcosim.engine.errors import ScenarioError
 from emcosim.engine.results import read_csv
 from emcosim.engine.ssd import read_scenario
@@ -131,7 +131,7 @@ def test_destination_is_checked_before_the_run(loop, tmp_path, target):
 
 
 def test_streamed_result_keeps_only_the_last_row(loop, tmp_path):
-    from emcosim.engine.results import ResultFile
+    from emcosim.engine.outputs import ResultFile
 
     out = tmp_path / "s.csv"
     with ResultFile(out, "toy") as sink:
@@ -148,7 +148,7 @@ def test_file_of_a_killed_run_is_marked_partial(tmp_path, folder):
     """NAME.incomplete-PID.csv whose lock is free (its process died) gets the partial comment; a torn
     last line (a write cut by kill -9) is left out. Also in a folder whose name holds "incomplete-" and
     glob's special characters."""
-    from emcosim.engine.results import mark_orphans
+    from emcosim.engine.outputs import mark_orphans
 
     where = tmp_path / folder
     where.mkdir(exist_ok=True)
@@ -216,12 +216,13 @@ def test_absurd_horizons_are_refused(loop, tmp_path, args, message):
 @pytest.mark.parametrize("setting", ["reference.kind=4294967296", "controller.strict=4294967296",
                                      "reference.kind=-2147483649"])
 def test_integers_out_of_32_bits_are_refused(fmu_dir, setting):
-    """fmi2Integer is 32 bits: 4294967296 used to wrap to 0 (kind 0: a constant reference)."""
+    """fmi2Integer is 32 bits: 4294967296 used to wrap to 0 (kind 0: a constant reference). The engine names the
+    start value as its API does; the command line as its --set (test_set_on_a_connected_input_is_refused)."""
     from emcosim.engine.session import check_start_values
 
     scenario = read_scenario(SCENARIOS / "maglev_tracking_D0_R2.82", fmu_dir=fmu_dir)
     name, _, value = setting.partition("=")
-    with pytest.raises(ScenarioError, match=rf"--set {re.escape(name)}: value {value} does not fit an FMI Integer"):
+    with pytest.raises(ScenarioError, match=rf"start value {re.escape(name)}: value {value} does not fit an FMI Integer"):
         check_start_values(scenario, {name: value})
     check_start_values(scenario, {name: "2147483647" if value[0] != "-" else "-2147483648"})   # the ends fit
 
@@ -236,21 +237,21 @@ def maglev_with_mass(tmp_path, fmu_dir, value: str, unit: str, base: str):
     text = ssv.read_text().replace('<ssv:Real value="0.0844"/>', f'<ssv:Real value="{value}" unit="{unit}"/>')
     ssv.write_text(text.replace("</ssv:Parameters>", "</ssv:Parameters>" + SSV_UNITS.format(name=unit, base=base)))
     scenario = read_scenario(folder, fmu_dir=fmu_dir)
-    instances = master.load(scenario)
+    instances = binding.load(scenario)
     return scenario, instances
 
 
 def test_ssv_unit_is_converted_to_the_fmu_unit(fmu_dir, tmp_path):
     """m = 8.44e-5 t (1 t = 1000 kg) is set as 0.0844 kg, the unit Maglev.fmu declares."""
     scenario, instances = maglev_with_mass(tmp_path, fmu_dir, "8.44e-5", "t", 'kg="1" factor="1000"')
-    values = dict((var.name, v) for var, v in master.parameter_values(scenario, instances, {})["plant"])
+    values = dict((var.name, v) for var, v in binding.parameter_values(scenario, instances, {})["plant"])
     assert values["m"] == pytest.approx(0.0844, rel=1e-15)
 
 
 def test_ssv_unit_of_another_dimension_is_refused(fmu_dir, tmp_path):
     scenario, instances = maglev_with_mass(tmp_path, fmu_dir, "0.0844", "mm", 'm="1" factor="0.001"')
     with pytest.raises(ScenarioError, match=r"plant\.m'.*unit mismatch.*\[mm\] \(m\).*Maglev\.fmu declares m in \[kg\] \(kg\)"):
-        master.parameter_values(scenario, instances, {})
+        binding.parameter_values(scenario, instances, {})
 
 
 def test_connection_between_different_dimensions_is_refused(fmu_dir, tmp_path):
@@ -266,7 +267,7 @@ def test_connection_between_different_dimensions_is_refused(fmu_dir, tmp_path):
     scenario = read_scenario(folder, fmu_dir=fmu_dir)
     with pytest.raises(ScenarioError, match=r"unit mismatch: connection plant\.q \[m\] \(m\) -> controller\.p "
                                             r"\[kg\.m/s\] \(kg\.m\.s-1\)"):
-        master.check_connections(scenario, master.load(scenario))
+        binding.check_connections(scenario, binding.load(scenario))
 
 
 def loop_with_connector_units(loop: Path, suppress: bool = False) -> Path:

@@ -19,8 +19,8 @@ from emcosim.engine.errors import ScenarioError, SimulationError
 from emcosim.engine.master import simulate
 from emcosim.progress import ProgressBar
 from emcosim.engine.results import read_csv
-from emcosim.engine.ssd import (Component, Connection, Connector, Parameter, Scenario, parameter_set_xml,
-                         read_scenario, system_structure_xml)
+from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
+from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
 from emcosim.engine.ssp import pack_ssp
 
 FIXTURES = Path(__file__).parent / "fixtures"

@@ -100,7 +100,8 @@ def test_a_non_finite_derivative_ends_the_run_naming_it(make, tmp_path, toleranc
     with a message naming the derivative, its order and the time; the rows before it are kept in the
     sink's partial file, each row accepted once (no rolled-back step among them)."""
     from emcosim.engine.errors import SimulationError
-    from emcosim.engine.results import ResultFile, read_csv
+    from emcosim.engine.outputs import ResultFile
+    from emcosim.engine.results import read_csv
     s = make([("plant", "dynamic", DYNAMIC, True, 3), ("ctrl", "static", STATIC, True, 3)],
              [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")],
              {"ctrl": {"k1": -1.0}, "plant": {"x0": 1.0, "nan_at": 0.5}}, 1.0, 0.01)
@@ -123,7 +124,8 @@ def test_rejected_steps_never_reach_the_sink(make, tmp_path):
     """With a too long first step (rejected, rolled back) the streamed file holds the accepted points
     only: strictly increasing times, one row per accepted step of the last pass plus the start (a
     second pass, when the first missed the aim, replaces the first pass's rows)."""
-    from emcosim.engine.results import ResultFile, read_csv
+    from emcosim.engine.outputs import ResultFile
+    from emcosim.engine.results import read_csv
     s = loop(make, stop_time=2.0)
     out = tmp_path / "r.csv"
     with ResultFile(out) as sink:
@@ -140,21 +142,21 @@ def test_a_maximum_step_without_a_tolerance_is_refused(make):
     from emcosim.engine.errors import ScenarioError
     s = make([("plant", "dynamic", DYNAMIC, True, 3), ("ctrl", "static", STATIC, True, 3)],
              [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")], {"ctrl": {"k1": -1.0}}, 0.1, 0.01)
-    with pytest.raises(ScenarioError, match="a maximum step bounds the steps that a tolerance chooses"):
+    with pytest.raises(ScenarioError, match="max_step bounds the steps that tolerance chooses"):
         simulate(s, max_step=0.05)
 
 
-@pytest.mark.parametrize("tolerance, implicit", [(None, False), (1e-4, False), (1e-4, True)])
-def test_an_fmu_that_cannot_save_its_state_ends_the_run_clearly(make, tolerance, implicit):
+@pytest.mark.parametrize("tolerance, coupling", [(None, "explicit"), (1e-4, "explicit"), (1e-4, "implicit")])
+def test_an_fmu_that_cannot_save_its_state_ends_the_run_clearly(make, tolerance, coupling):
     """fmi2GetFMUstate answers fmi2Error (as an FMU with no memory left would): the run ends with a
     SimulationError naming the FMU, the function, the time and what the state was for (here the
     first point's trial of the input derivative orders), not an exception of the FMI layer
     (engine/fmustate.py is the one way the master, the step control and implicit coupling save states)."""
     from emcosim.engine.errors import SimulationError
     with Simulation(loop(make, k=-3.0)) as sim:
-        sim.run(stop_time=0.02, tolerance=tolerance, record=["plant.x"], implicit=implicit)   # loaded, works
+        sim.run(stop_time=0.02, tolerance=tolerance, record=["plant.x"], coupling=coupling)   # loaded, works
         refuse = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p)(lambda component, state: 3)
-        sim.instances["plant"].slave._functions["fmi2GetFMUstate"] = refuse          # fmi2Error
+        sim.instances["plant"].fmu._functions["fmi2GetFMUstate"] = refuse   # fmi2Error (fmpy's raw functions: fmi.raw)
         with pytest.raises(SimulationError, match=r"ToyPlant\w*\.fmu: component 'plant' failed in fmi2GetFMUstate "
                                                   r"at t = 0 s \(the master tries which input derivative orders"):
-            sim.run(tolerance=tolerance, record=["plant.x"], implicit=implicit)
+            sim.run(tolerance=tolerance, record=["plant.x"], coupling=coupling)

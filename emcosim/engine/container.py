@@ -27,8 +27,8 @@ from fmpy.container_fmu.cli import create_container_fmu
 from fmpy.container_fmu.config import Component, Connection
 from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
 
-from .errors import ScenarioError
-from .master import check_connections, load, parameter_values
+from .errors import OptionError, ScenarioError
+from .binding import check_connections, load, parameter_values
 from .ssd import Scenario
 
 
@@ -36,7 +36,8 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
     """Write `scenario` as a container FMU to `filename` and return it."""
     h = scenario.hold_step(step_size, "the container FMU")
     if h is None or not h > 0:
-        raise ScenarioError(f"{scenario.path}: the container needs a positive fixed step (give --step-size)")
+        raise OptionError("{where}: the container needs a positive fixed step (give {step_size})", "step_size",
+                          where=scenario.path)
     instances = load(scenario)
     connections = check_connections(scenario, instances)
     for c in connections:

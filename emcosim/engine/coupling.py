@@ -23,22 +23,17 @@ derivatives (set earlier in the same pass, from lower levels). So plant -> contr
 chains get their derivatives like their values: the controller's du/dt is read after the plant's
 and the reference's output derivatives have been set on its inputs. Sources without inputs give all
 their orders in one call. A linear transformation y -> factor * y + offset on a connection scales
-every derivative by the factor. The calls are raw ctypes calls on preallocated arrays (as the value
-transfers of master.py).
+every derivative by the factor. The calls are transfers (transfer.py), as the values'.
 """
 from __future__ import annotations
 
-import ctypes
-import math
-import time
 from dataclasses import dataclass, field
 
-from fmpy.fmi1 import FMICallException
-
 from . import dependencies
-from .errors import ScenarioError
-
-MAX_ORDER = 3            # the highest order the master passes when no order is asked for
+from .fmi import FMICallException
+from .history import History, taylor
+from .options import MAX_COUPLING_ORDER as MAX_ORDER   # the highest order the master passes when none is asked for
+from .transfer import Transfer
 
 
 @dataclass(frozen=True)
@@ -60,11 +55,9 @@ def connection_orders(instances: dict, connections, level: dict[str, int], depen
 
     level: full output name -> dependency level (dependencies.levels); depends: full output name ->
     full input names it depends on (direct feedthrough). requested: the order asked for (None: as
-    high as both ends allow, up to MAX_ORDER); a ScenarioError if it is not 0..MAX_ORDER.
+    high as both ends allow, up to MAX_ORDER; options.check refuses any other).
     accepted: component -> the highest input derivative order it was found to accept (FMI 2.0
     does not declare it; see master.Simulation's first communication point)."""
-    if requested is not None and not (isinstance(requested, int) and 0 <= requested <= MAX_ORDER):
-        raise ScenarioError(f"coupling order {requested!r} must be an integer from 0 to {MAX_ORDER}")
     cap = MAX_ORDER if requested is None else requested
     caps = {name: capabilities(inst.model_description) for name, inst in instances.items()}
     order_of: dict[str, int] = {}                      # input full name -> order
@@ -100,64 +93,6 @@ def extrapolated_orders(instances: dict, connections, orders: dict[str, int], re
     return out
 
 
-class DerivativeTransfer:
-    """fmi2GetRealOutputDerivatives / fmi2SetRealInputDerivatives of a batch of (variable, order)
-    of one FMU, on preallocated arrays."""
-
-    def __init__(self, inst, entries: list[tuple[str, int]], getter: bool):
-        self.inst = inst
-        self.entries = entries                                    # [(variable name, order)]
-        n = len(entries)
-        self.vr = (ctypes.c_uint * n)(*[inst.variables[v].valueReference for v, _ in entries])
-        self.order = (ctypes.c_int * n)(*[k for _, k in entries])
-        self.values = (ctypes.c_double * n)()
-        self.function = "fmi2GetRealOutputDerivatives" if getter else "fmi2SetRealInputDerivatives"
-        self.call = inst.slave._functions[self.function]
-        self.n = n
-        self.args = (inst.slave.component, self.vr, n, self.order, self.values)
-        self.elapsed = 0.0
-        self.slots: list[int] = []                                # derivative slots, one per entry
-
-        self.getter = getter
-        self.view = memoryview(self.values).cast("B").cast("d")    # the values as plain doubles
-
-    def __call__(self) -> None:
-        if not self.getter:
-            self._check_finite()
-        tic = time.perf_counter()
-        status = self.call(*self.args)
-        self.elapsed += time.perf_counter() - tic
-        if status > 1:
-            raise FMICallException(self.function, status)
-        if self.getter:
-            self._check_finite()
-
-    def _check_finite(self) -> None:
-        """A NaN or infinity got from the FMU (it may return one with fmi2OK) or about to be set on
-        it ends the run, as for values (master._Transfer)."""
-        if math.isfinite(sum(self.view)):
-            return
-        for (name, k), v in zip(self.entries, self.values):
-            if not math.isfinite(v):
-                raise NonFiniteDerivative(self, name, k, v)
-
-
-class NonFiniteDerivative(Exception):
-    """A NaN or infinity among the derivatives got from (or about to be set on) an FMU."""
-
-    def __init__(self, transfer: DerivativeTransfer, name: str, order: int, value: float):
-        super().__init__(name)
-        self.transfer, self.name, self.order, self.value = transfer, name, order, value
-
-    def message(self, t: float) -> str:
-        inst = self.transfer.inst
-        what = f"derivative of order {self.order} of {inst.name}.{self.name} = {self.value} at t = {t:.9g} s"
-        if self.transfer.getter:
-            return (f"{what}: {inst.path.name} (component '{inst.name}') returned a value that is not finite "
-                    "(fmi2GetRealOutputDerivatives)")
-        return f"{what}: the value to set on this input (fmi2SetRealInputDerivatives) is not finite"
-
-
 class _Extrapolation:
     """One derivative order more than the source gives, for the inputs of one target: the backward
     difference of the highest order passed, between the previous communication point and this one,
@@ -177,23 +112,21 @@ class _Extrapolation:
 
     FADE, GAIN = 0.8, 1.0
 
-    def __init__(self, transfer: DerivativeTransfer, below: list, inputs: list[str]):
+    def __init__(self, transfer: Transfer, below: list, inputs: list[str]):
         self.transfer = transfer
         self.below = below                   # slot (derivative values) of order k, or None for k = 0
         self.value_slots: list[int] = []     # slot (master's value buffer) of each input, for k = 0
         self.inputs = inputs
-        self.history: list[tuple] = []       # (t, values of order k, estimate of order k + 1, e_hold, e_extrapolated)
+        self.history = History()             # t -> (values of order k, estimate of order k + 1, e_hold, e_extrapolated)
         self.guarded: list[int] = []         # index of each input in the plan's _Guard (-1: none)
 
     def __call__(self, t: float, values: list[float], slots: list[float]) -> None:
         now = [values[b] if b is not None else slots[v] for b, v in zip(self.below, self.value_slots)]
-        history = self.history
-        while history and history[-1][0] >= t:
-            history.pop()
+        last = self.history.last(t)
         out = self.transfer.values
         estimate, hold, extrapolated = [0.0] * len(now), 0.0, 0.0
-        if history:
-            t_prev, before, previous_estimate, hold, extrapolated = history[-1]
+        if last is not None:
+            t_prev, (before, previous_estimate, hold, extrapolated) = last
             dt = t - t_prev
             change = miss = 0.0
             for i, (a, b) in enumerate(zip(now, before)):
@@ -203,13 +136,12 @@ class _Extrapolation:
             if previous_estimate is not None:
                 hold = self.FADE * hold + change
                 extrapolated = self.FADE * extrapolated + miss
-        use = bool(history) and (history[-1][2] is None or extrapolated < self.GAIN * hold)
+        use = last is not None and (last[1][1] is None or extrapolated < self.GAIN * hold)
         for i in range(len(now)):
             out[i] = estimate[i] if use else 0.0
         for i, s in enumerate(self.transfer.slots):
             values[s] = out[i]
-        history.append((t, now, estimate if history else None, hold, extrapolated))
-        del history[:-3]                    # a rollback over two substeps (stepcontrol) leaves the point before
+        self.history.add(t, (now, estimate if last is not None else None, hold, extrapolated))
 
 
 class _Guard:
@@ -236,23 +168,18 @@ class _Guard:
         self.value_slots = value_slots              # slot of each input in the master's value buffer
         self.derivative_slots = derivative_slots    # per input: slots of its orders 1..K (source values x factor)
         self.held = [False] * len(inputs)
-        self.history: list[tuple] = []              # (t, values, derivatives, e_hold sums, e_poly sums)
+        self.history = History()                    # t -> (values, derivatives, e_hold sums, e_poly sums)
 
     def decide(self, t: float, slots: list[float]) -> None:
-        history = self.history
-        while history and history[-1][0] >= t:
-            history.pop()
-        if not history:                             # nothing to compare yet (see `first`)
+        last = self.history.last(t)
+        if last is None:                            # nothing to compare yet (see `first`)
             self.held = None
             return
-        t_prev, before, ders, hold, poly = history[-1]
+        t_prev, (before, ders, hold, poly) = last
         dt = t - t_prev
         for i, s in enumerate(self.value_slots):
             u = slots[s]
-            p, term = before[i], 1.0
-            for j, d in enumerate(ders[i], start=1):
-                term *= dt / j
-                p += d * term
+            p = taylor(before[i], ders[i], dt)
             self.held[i] = self.FADE * poly[i] + abs(u - p) > self.MARGIN * (self.FADE * hold[i] + abs(u - before[i]))
 
     def first(self, derived: list[list[float]], slots: list[float], dt: float) -> None:
@@ -261,40 +188,34 @@ class _Guard:
         an input at 0 has no magnitude to compare with and follows its polynomial)."""
         held = []
         for i, s in enumerate(self.value_slots):
-            u, change, term = slots[s], 0.0, 1.0
-            for j, d in enumerate(derived[i], start=1):
-                term *= dt / j
-                change += d * term
+            u = slots[s]
+            change = taylor(0.0, derived[i], dt)
             held.append(abs(change) > 10.0 * abs(u) > 0.0)
         self.held = held
 
     def record(self, t: float, slots: list[float], derived: list[list[float]]) -> None:
         """After the derivatives of point t were resolved: derived[i], the source's derivatives of input i."""
-        history = self.history
         now = [slots[s] for s in self.value_slots]
-        if history:
-            t_prev, before, ders, hold, poly = history[-1]
+        last = self.history.last(t)
+        if last is not None:
+            t_prev, (before, ders, hold, poly) = last
             dt = t - t_prev
             new_hold, new_poly = [], []
             for i, u in enumerate(now):
-                p, term = before[i], 1.0
-                for j, d in enumerate(ders[i], start=1):
-                    term *= dt / j
-                    p += d * term
+                p = taylor(before[i], ders[i], dt)
                 new_hold.append(self.FADE * hold[i] + abs(u - before[i]))
                 new_poly.append(self.FADE * poly[i] + abs(u - p))
         else:
             new_hold, new_poly = [0.0] * len(now), [0.0] * len(now)
-        history.append((t, now, derived, new_hold, new_poly))
-        del history[:-3]                            # a rollback over two substeps leaves the point before
+        self.history.add(t, (now, derived, new_hold, new_poly))
 
 
 @dataclass
 class DerivativePlan:
     """The derivative transfers of a communication point, and where their values are kept.
 
-    passes: per order k = 1..K, per level: (gets, sets); a get is a DerivativeTransfer, a set is
-        (DerivativeTransfer, [(source slot, factor)]).
+    passes: per order k = 1..K, per level: (gets, sets); a get is a derivative Transfer, a set is
+        (Transfer, [(source slot, factor, guard index, order)]).
     extrapolations: the extrapolated top orders (_Extrapolation), set after the passes.
     slot: (full name, order) -> index into `values` (outputs and connected inputs).
     orders: input full name -> coupling order.
@@ -312,7 +233,7 @@ class DerivativePlan:
     def max_order(self) -> int:
         return max(self.orders.values(), default=0)
 
-    def transfers(self) -> list[DerivativeTransfer]:
+    def transfers(self) -> list[Transfer]:
         return ([t for levels in self.passes for gets, sets in levels for t in gets + [s for s, _ in sets]]
                 + [e.transfer for e in self.extrapolations])
 
@@ -419,7 +340,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
                 elif need[out] >= k:
                     by_comp.setdefault(comp, []).append((var, k))
             for comp, entries in by_comp.items():
-                t = DerivativeTransfer(instances[comp], entries, getter=True)
+                t = Transfer(instances[comp], [v for v, _ in entries], getter=True, orders=[j for _, j in entries])
                 t.slots = [slot_of((f"{comp}.{v}", j)) for v, j in entries]
                 gets.append(t)
             sets = []
@@ -428,7 +349,7 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
                 if level[c.start] == lv and orders[c.end] >= k and c.end not in (read_only or ()):
                     targets.setdefault(c.end_element, []).append(c)
             for comp, conns in targets.items():
-                t = DerivativeTransfer(instances[comp], [(c.end_connector, k) for c in conns], getter=False)
+                t = Transfer(instances[comp], [c.end_connector for c in conns], getter=False, orders=[k] * len(conns))
                 t.slots = [slot_of((c.end, k)) for c in conns]
                 sets.append((t, [(slot_of((c.start, k)), c.factor, guarded.get(c.end, -1), k) for c in conns]))
             levels.append((gets, sets))
@@ -439,7 +360,8 @@ def plan_derivatives(instances: dict, connections, level: dict[str, int], orders
         if c.end in (extrapolated or {}):
             by_target.setdefault(c.end_element, []).append(c)
     for comp, conns in by_target.items():
-        t = DerivativeTransfer(instances[comp], [(c.end_connector, extrapolated[c.end]) for c in conns], getter=False)
+        t = Transfer(instances[comp], [c.end_connector for c in conns], getter=False,
+                     orders=[extrapolated[c.end] for c in conns])
         t.slots = [slot_of((c.end, extrapolated[c.end])) for c in conns]
         below = [slot_of((c.end, extrapolated[c.end] - 1)) if extrapolated[c.end] > 1 else None for c in conns]
         e = _Extrapolation(t, below, [c.end for c in conns])

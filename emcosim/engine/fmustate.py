@@ -6,22 +6,20 @@ from __future__ import annotations
 
 import ctypes
 
-from fmpy.fmi2 import fmi2FMUstate
-
 from .errors import SimulationError
+from .fmi import fmi2FMUstate
 
 
 class States:
-    """fmi2GetFMUstate / fmi2SetFMUstate / fmi2FreeFMUstate of a list of FMUs (master.Instance), as raw
-    ctypes calls (fmpy's wrappers add a Python layer per call); a failure is a SimulationError that
-    names the FMU, the function and the time. `why`: what the rollback is for, for the messages."""
+    """fmi2GetFMUstate / fmi2SetFMUstate / fmi2FreeFMUstate of a list of FMUs (instances.Instance), as raw
+    ctypes calls (fmi.raw); a failure is a SimulationError that names the FMU, the function and the time.
+    `why`: what the rollback is for, for the messages."""
 
     def __init__(self, instances: list, why: str):
         self.instances = instances
         self.why = why
-        self.calls = [(inst, inst.slave.component, inst.slave._functions["fmi2GetFMUstate"],
-                       inst.slave._functions["fmi2SetFMUstate"], inst.slave._functions["fmi2FreeFMUstate"])
-                      for inst in instances]
+        self.calls = [(inst, inst.component, inst.raw("fmi2GetFMUstate"), inst.raw("fmi2SetFMUstate"),
+                       inst.raw("fmi2FreeFMUstate")) for inst in instances]
 
     def save(self, t: float) -> list:
         states = []

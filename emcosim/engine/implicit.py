@@ -1,4 +1,4 @@
-"""Implicit coupling: each communication step iterated until the inputs agree (`emcosim run --coupling implicit`).
+"""Implicit coupling: each communication step iterated until the inputs agree (coupling "implicit").
 
 Explicit coupling (coupling.py) hands an FMU with states a polynomial for each input at t_n, built from
 what the source gives at t_n. Where the loop through that input is stiff at the step (a closed-loop
@@ -49,11 +49,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fmpy.fmi1 import FMICallException
-
-from .coupling import DerivativeTransfer, NonFiniteDerivative, capabilities
+from .coupling import capabilities
 from .errors import ScenarioError, SimulationError
+from .fmi import FMICallException
 from .fmustate import States
+from .history import History
+from .transfer import NonFinite, Transfer
 
 ITERATION_TOL = 1e-6    # fixed steps: the end values agree to this fraction of the inputs' scale
 ITERATION_FLOOR = 1e-7  # never asked for less: about what the FMUs' own integration error makes of
@@ -123,7 +124,7 @@ class _Refused(Exception):
 
 
 class Implicit:
-    """The implicit step of one copy of the FMUs (a master._Stepper).
+    """The implicit step of one copy of the FMUs (a stepper.Stepper).
 
     stepper: the stepper whose `step` calls this; connections: those of `implicit_inputs`;
     value_slot: full name -> slot of the stepper's value buffer; derivative_slot: input full name ->
@@ -152,7 +153,8 @@ class Implicit:
             else:
                 orders = (1, 2) if self.mode == "hermite" else (1,)
                 entries = [(c.end_connector, k) for k in orders for _, c in items]
-                self.sets.append((DerivativeTransfer(inst, entries, getter=False), idx))
+                self.sets.append((Transfer(inst, [v for v, _ in entries], getter=False, orders=[k for _, k in entries]),
+                                  idx))
         rolled = set(by_target)
         self.rolled = [(inst, fn, comp) for inst, fn, comp in stepper.do_step if inst.name in rolled]
         self.states = States([inst for inst, _, _ in self.rolled], "implicit coupling rolls it back")
@@ -166,7 +168,7 @@ class Implicit:
         self.jacobian: np.ndarray | None = None
         self.jacobian_step = 0.0                # the step it was computed for (it changes with the step)
         self.kept: dict[float, np.ndarray] = {}   # step -> the latest Jacobian for it (oldest first)
-        self.history: list[tuple[float, list[float], list[float]]] = []   # (t, values, derivatives) before
+        self.history = History()                # t -> (values, derivatives) of the points before
         self.statistics = Statistics()
 
     @property
@@ -217,11 +219,7 @@ class Implicit:
             self._chords_only()
             self._iterate(t, h, u0, [], states)
         self.statistics.steps += 1
-        history = self.history
-        while history and history[-1][0] >= t:
-            history.pop()
-        history.append((t, u0, d0))
-        del history[:-3]                    # a rollback over two substeps leaves the point before them
+        self.history.add(t, (u0, d0))
 
     def _iterate(self, t: float, h: float, u0, d0, states) -> int:
         z = self._predict(t, h, u0, d0)
@@ -271,7 +269,8 @@ class Implicit:
     def _chords_only(self) -> None:
         self.mode, self.derivative_slots, self.jacobian = "chord", [], None
         self.kept.clear()
-        self.sets = [(DerivativeTransfer(t.inst, [e for e in t.entries if e[1] == 1], getter=False), idx)
+        self.sets = [(Transfer(t.inst, [v for v, k in t.entries if k == 1], getter=False,
+                               orders=[k for _, k in t.entries if k == 1]), idx)
                      for t, idx in self.sets]
 
     def _predict(self, t: float, h: float, u0: list[float], d0: list[float]) -> list[float]:
@@ -279,12 +278,10 @@ class Implicit:
         through the values and derivatives at the point before and at t; chords, the parabola through
         the two points before and u0 (a line through one); u0 (and d0) held at the first step. A
         rolled-back step leaves no point behind."""
-        history = self.history
-        while history and history[-1][0] >= t:
-            history.pop()
+        history = self.history.before(t)
         if not history:
             return list(u0) + list(d0)
-        t1, u1, d1 = history[-1]
+        t1, (u1, d1) = history[-1]
         k = h / (t - t1)
         if self.mode == "hermite":
             # the cubic, unless it moves an input more than twice as far as the line through the two
@@ -297,7 +294,7 @@ class Implicit:
         ds = [a + (a - b) * k for a, b in zip(d0, d1)]
         if len(history) < 2:
             return [a + (a - b) * k for a, b in zip(u0, u1)] + ds
-        t2, u2, _ = history[-2]
+        t2, (u2, _) = history[-2]
         s = t + h                                   # Lagrange weights of (t2, t1, t) at t + h
         w0 = (s - t1) * (s - t2) / ((t - t1) * (t - t2))
         w1 = (s - t) * (s - t2) / ((t1 - t) * (t1 - t2))
@@ -346,9 +343,9 @@ class Implicit:
             r += [d - zi for d, zi in zip(self.source_derivatives(), z[n:])]
         return r
 
-    def transfers(self) -> list[DerivativeTransfer]:
+    def transfers(self) -> list[Transfer]:
         """The input-derivative transfers (their `elapsed` is time inside the FMUs)."""
-        return [t for t, _ in self.sets if isinstance(t, DerivativeTransfer)]
+        return [t for t, _ in self.sets if isinstance(t, Transfer)]
 
     def source_derivatives(self) -> list[float]:
         """The sources' first derivatives (times the connections' factors) at the last resolve, for the
@@ -356,10 +353,10 @@ class Implicit:
         dv = self.stepper.derivatives.values if self.derivative_slots else None
         return [dv[s] * f for s, f in self.derivative_slots]
 
-    def _call(self, transfer: DerivativeTransfer, t: float) -> None:
+    def _call(self, transfer: Transfer, t: float) -> None:
         try:
             transfer()
-        except NonFiniteDerivative as exc:
+        except NonFinite as exc:
             raise SimulationError(f"implicit coupling: {exc.message(t)}") from None
         except FMICallException as exc:
             if self.mode == "hermite":

@@ -150,7 +150,7 @@ class VariableInfo:
 def variable_info(scenario) -> dict[str, VariableInfo]:
     """Unit and description of every variable of the scenario's FMUs, by full name, from each
     FMU's modelDescription."""
-    from .master import load
+    from .binding import load
 
     info = {}
     for name, inst in load(scenario).items():

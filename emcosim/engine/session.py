@@ -16,7 +16,7 @@ import concurrent.futures
 import threading
 from typing import Callable, Sequence, TypeVar
 
-from . import master
+from . import binding, master
 from .results import Result
 from .ssd import Scenario
 
@@ -33,11 +33,11 @@ class Session(master.Simulation):
     def run(self, start_values: dict[str, str | float] | None = None, stop_time: float | None = None,
             step_size: float | None = None, record: Sequence[str] | None = None,
             tolerance: float | None = None, coupling_order: int | None = None,
-            implicit: bool | None = None) -> Result:
+            coupling: str | None = None) -> Result:
         """Run the scenario once, like `master.simulate` with the same arguments (fixed communication
         step unless a tolerance is given); raises the same ScenarioError / SimulationError."""
         return super().run(stop_time=stop_time, step_size=step_size, start_values=start_values, record=record,
-                           tolerance=tolerance, coupling_order=coupling_order, implicit=implicit)
+                           tolerance=tolerance, coupling_order=coupling_order, coupling=coupling)
 
 
 def on_main_thread(fn: Callable[[], T]) -> T:
@@ -68,8 +68,8 @@ def on_main_thread(fn: Callable[[], T]) -> T:
 def check_start_values(scenario: Scenario, start_values: dict[str, str | float]) -> None:
     """Raise the master's one-line ScenarioError if a start value names an unknown component or
     variable, a variable that cannot be set, or a value of the wrong type (nothing is run)."""
-    instances = master.load(scenario)
-    master.parameter_values(scenario, instances, start_values)
+    instances = binding.load(scenario)
+    binding.parameter_values(scenario, instances, start_values)
 
 
 __all__ = ["Session", "check_start_values", "on_main_thread"]

@@ -34,6 +34,7 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from . import tempdirs
+from .archive import ArchiveLimits, check_inside, extract_archive, unpacked
 from .errors import ScenarioError
 from .units import Unit, parse_units
 
@@ -152,20 +153,6 @@ def with_values(scenario: Scenario, values: dict[str, float]) -> Scenario:
 
 # ---- reading --------------------------------------------------------------------------------------
 
-@dataclass
-class ArchiveLimits:
-    """What an .ssp archive may unpack to. The defaults refuse a "zip bomb" (a small archive that
-    inflates to gigabytes) and an .ssd that points at files outside its archive (absolute paths,
-    `..`); the command line's --ssp-max-size, --ssp-max-files and --allow-external change them."""
-
-    max_bytes: int = 2 << 30                  # total unpacked size: 2 GiB
-    max_files: int = 10_000
-    allow_external: bool = False
-
-
-_archives: dict[Path, tuple[Path, ArchiveLimits]] = {}   # unpacked folder -> (its .ssp, the limits used)
-
-
 def resolve_path(path: str | Path, scenario_dirs: list[Path] | None = None,
                  limits: ArchiveLimits | None = None) -> Path:
     """The .ssd file of a scenario given as an .ssd file, a folder holding SystemStructure.ssd,
@@ -191,45 +178,9 @@ def resolve_path(path: str | Path, scenario_dirs: list[Path] | None = None,
         extract_archive(p, target, limits)
         if not (target / SSD_NAME).is_file():
             raise ScenarioError(f"{p}: archive has no {SSD_NAME}")
-        _archives[target.resolve()] = (p, limits)
+        unpacked[target.resolve()] = (p, limits)
         return target / SSD_NAME
     return p
-
-
-def extract_archive(archive: Path, target: Path, limits: ArchiveLimits | None = None) -> None:
-    """Unpack a zip archive (.ssp, .fmu) into `target`, refusing more than limits.max_files entries
-    or limits.max_bytes in total (declared sizes; Python's zipfile stops at the declared size of
-    each entry and checks its CRC, so an entry cannot inflate beyond what it declares)."""
-    limits = limits or ArchiveLimits()
-    try:
-        with zipfile.ZipFile(archive) as z:
-            entries = z.infolist()
-            if len(entries) > limits.max_files:
-                raise ScenarioError(f"{archive}: archive holds {len(entries)} files, more than the limit of "
-                                    f"{limits.max_files} (raise it with --ssp-max-files)")
-            size = sum(e.file_size for e in entries)
-            if size > limits.max_bytes:
-                raise ScenarioError(f"{archive}: archive unpacks to {size / 2**20:.0f} MiB, more than the limit of "
-                                    f"{limits.max_bytes / 2**20:.0f} MiB (raise it with --ssp-max-size)")
-            z.extractall(target)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError) as exc:
-        raise ScenarioError(f"{archive}: not a valid zip archive ({exc})") from None
-    except OSError as exc:
-        raise ScenarioError(f"{archive}: cannot unpack to {target}: {exc.strerror or exc}") from None
-
-
-def _check_inside(ssd: Path, reference: str, what: str) -> None:
-    """Refuse a reference of an .ssd unpacked from an .ssp that leaves the archive."""
-    root = ssd.parent.resolve()
-    if root not in _archives:
-        return
-    archive, limits = _archives[root]
-    if limits.allow_external:
-        return
-    target = (root / reference).resolve()
-    if Path(reference).is_absolute() or "://" in reference or not target.is_relative_to(root):
-        raise ScenarioError(f"{archive}: {what} '{reference}' points outside the archive "
-                            "(allow it with --allow-external)")
 
 
 def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
@@ -237,7 +188,7 @@ def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
     """Parse a scenario (see `resolve_path`) with its .ssv parameter files. With `fmu_dir`, every
     component's FMU is taken from that folder (same file name) instead of its `source` path."""
     ssd = resolve_path(path, scenario_dirs, limits)
-    root, notes = _parse(ssd, comments=True)
+    root, notes = parse(ssd, comments=True)
     if root.tag != _q("ssd", "SystemStructureDescription"):
         raise ScenarioError(f"{ssd}: root element is {root.tag}, expected ssd:SystemStructureDescription")
     system = _child(root, "ssd", "System", ssd)
@@ -294,7 +245,7 @@ def read_scenario(path: str | Path, scenario_dirs: list[Path] | None = None,
 
 def read_parameter_set(path: Path) -> dict[str, Parameter]:
     """Parameters of an .ssv file, by name."""
-    root = _parse(path)
+    root = parse(path)
     if root.tag != _q("ssv", "ParameterSet"):
         raise ScenarioError(f"{path}: root element is {root.tag}, expected ssv:ParameterSet")
     return _read_parameters(root, path, _units(root.find("ssv:Units", NS), path))
@@ -304,7 +255,7 @@ def _read_component(el: ET.Element, ssd: Path, units: dict[str, Unit], check_sou
     name = _attr(el, "name", ssd)
     source = _attr(el, "source", ssd)
     if check_source:
-        _check_inside(ssd, source, f"component '{name}': source")
+        check_inside(ssd, source, f"component '{name}': source")
     comp = Component(name=name, source=(ssd.parent / source).resolve(), description=el.get("description"))
     for c in el.findall("ssd:Connectors/ssd:Connector", NS):
         types = [t for t in TYPES if c.find(f"ssc:{t}", NS) is not None]
@@ -318,7 +269,7 @@ def _read_component(el: ET.Element, ssd: Path, units: dict[str, Unit], check_sou
         prefix = binding.get("prefix", "")
         src = binding.get("source")
         if src is not None:
-            _check_inside(ssd, src, f"component '{name}': parameter binding")
+            check_inside(ssd, src, f"component '{name}': parameter binding")
             comp.parameter_sources.append(src)
             values = read_parameter_set(ssd.parent / src)
         else:
@@ -388,7 +339,7 @@ class _Comments(ET.TreeBuilder):
         return super().comment(text)
 
 
-def _parse(path: Path, comments: bool = False, insert_comments: bool = False):
+def parse(path: Path, comments: bool = False, insert_comments: bool = False):
     """The root element of an XML file (and with `comments`, its comments, whitespace collapsed;
     with `insert_comments`, the comments inside the root element are kept in the tree).
     Any encoding XML allows is read: expat decodes UTF-8, UTF-16 and ISO-8859-1 itself; for others
@@ -474,116 +425,6 @@ def _float(raw: str, path: Path, what: str) -> float:
     return finite_number(raw, f"{path}: {what}")
 
 
-# ---- writing --------------------------------------------------------------------------------------
-
+# the namespaces' prefixes when a scenario is written (ssd_writer.py, ssp.py)
 for _prefix, _uri in NS.items():
     ET.register_namespace(_prefix, _uri)
-
-
-def format_value(value: float | int | bool | str) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return repr(value)
-    return str(value)
-
-
-def parameter_set_xml(name: str, parameters: list[Parameter], notes: list[str] = ()) -> str:
-    """The text of an .ssv file; each parameter's description becomes an XML comment before it.
-    Units go into the comments, not into `unit` attributes (SSP wants those declared in ssc:Units)."""
-    lines = ['<?xml version="1.0" encoding="UTF-8"?>']
-    lines += [f"<!-- {_comment(n)} -->" for n in notes]
-    lines.append(f'<ssv:ParameterSet xmlns:ssv="{NS["ssv"]}" version="1.0" name="{_esc(name)}">')
-    lines.append("  <ssv:Parameters>")
-    for p in parameters:
-        if p.description:
-            lines.append(f"    <!-- {_comment(p.description)} -->")
-        lines.append(f'    <ssv:Parameter name="{_esc(p.name)}">'
-                     f'<ssv:{p.type} value="{_esc(format_value(p.value))}"/></ssv:Parameter>')
-    lines += ["  </ssv:Parameters>", "</ssv:ParameterSet>", ""]
-    return "\n".join(lines)
-
-
-def identifier(name: str) -> str:
-    """`name` as an identifier (letters, digits, '_'; starting with a letter), as OMSimulator wants
-    model and system names: every other character becomes '_'."""
-    ident = re.sub(r"[^A-Za-z0-9_]", "_", name)
-    return ident if ident[:1].isalpha() else f"s_{ident}"
-
-
-def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float) -> str:
-    """The text of an .ssd file. `sources` maps component names to the FMU paths as written
-    (relative to the .ssd); each component binds the .ssv files in its `parameter_sources`.
-    `scenario.notes` become XML comments at the top, `description`s become attributes. The System
-    is named `identifier(scenario.name)` and carries OpenModelica's fixed-step annotation; the
-    DefaultExperiment carries the OSP one (both give `step_size`)."""
-    ns = " ".join(f'xmlns:{p}="{u}"' for p, u in NS.items())
-    desc = f' description="{_esc(scenario.description)}"' if scenario.description else ""
-    lines = ['<?xml version="1.0" encoding="UTF-8"?>']
-    lines += [f"<!-- {_comment(n)} -->" for n in scenario.notes]
-    lines.append(f'<ssd:SystemStructureDescription {ns} version="1.0" name="{_esc(scenario.name)}"{desc}>')
-    lines.append(f'  <ssd:System name="{_esc(identifier(scenario.name))}">')
-    lines.append("    <ssd:Elements>")
-    for c in scenario.components:
-        cdesc = f' description="{_esc(c.description)}"' if c.description else ""
-        lines.append(f'      <ssd:Component name="{_esc(c.name)}" type="application/x-fmu-sharedlibrary" '
-                     f'source="{_esc(sources[c.name])}"{cdesc}>')
-        lines.append("        <ssd:Connectors>")
-        for k in c.connectors:
-            lines.append(f'          <ssd:Connector name="{_esc(k.name)}" kind="{k.kind}"><ssc:{k.type}/></ssd:Connector>')
-        lines.append("        </ssd:Connectors>")
-        if c.parameter_sources:
-            lines.append("        <ssd:ParameterBindings>")
-            lines += [f'          <ssd:ParameterBinding source="{_esc(s)}"/>' for s in c.parameter_sources]
-            lines.append("        </ssd:ParameterBindings>")
-        lines.append("      </ssd:Component>")
-    lines.append("    </ssd:Elements>")
-    lines.append("    <ssd:Connections>")
-    for k in scenario.connections:
-        attrs = (f'startElement="{_esc(k.start_element)}" startConnector="{_esc(k.start_connector)}" '
-                 f'endElement="{_esc(k.end_element)}" endConnector="{_esc(k.end_connector)}"')
-        if k.factor != 1.0 or k.offset != 0.0:
-            lines.append(f"      <ssd:Connection {attrs}>")
-            lines.append(f'        <ssc:LinearTransformation factor="{k.factor!r}" offset="{k.offset!r}"/>')
-            lines.append("      </ssd:Connection>")
-        else:
-            lines.append(f"      <ssd:Connection {attrs}/>")
-    lines.append("    </ssd:Connections>")
-    lines += ["    <ssd:Annotations>", *oms_annotation(step_size, "      "), "    </ssd:Annotations>"]
-    lines.append("  </ssd:System>")
-    stop = f' stopTime="{scenario.stop_time!r}"' if scenario.stop_time is not None else ""
-    lines.append(f'  <ssd:DefaultExperiment startTime="{scenario.start_time!r}"{stop}>')
-    lines.append("    <ssd:Annotations>")
-    lines.append(f'      <ssc:Annotation type="{OSP_ANNOTATION}">')
-    lines.append(f'        <osp:Algorithm><osp:FixedStepAlgorithm baseStepSize="{step_size!r}"/></osp:Algorithm>')
-    lines.append("      </ssc:Annotation>")
-    if scenario.coupling is not None:
-        lines.append(f'      <ssc:Annotation type="{EMCOSIM_ANNOTATION}">')
-        lines.append(f'        <emcosim:Coupling method="{scenario.coupling}"/>')
-        lines.append("      </ssc:Annotation>")
-    lines.append("    </ssd:Annotations>")
-    lines.append("  </ssd:DefaultExperiment>")
-    lines += ["</ssd:SystemStructureDescription>", ""]
-    return "\n".join(lines)
-
-
-def oms_annotation(step_size: float, indent: str = "") -> list[str]:
-    """OpenModelica's annotation of a fixed-step co-simulation system (what OMSimulator writes and
-    reads: it must be the first ssc:Annotation of the System's ssd:Annotations)."""
-    return [indent + line for line in [
-        f'<ssc:Annotation type="{OMS_ANNOTATION}">',
-        "  <oms:Annotations>",
-        "    <oms:SimulationInformation>",
-        f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="0.0001" '
-        'relativeTolerance="0.0001"/>',
-        "    </oms:SimulationInformation>",
-        "  </oms:Annotations>",
-        "</ssc:Annotation>"]]
-
-
-def _esc(s: str) -> str:
-    return (str(s).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;"))
-
-
-def _comment(s: str) -> str:
-    return " ".join(str(s).replace("--", "- -").split())

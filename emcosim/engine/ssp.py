@@ -11,8 +11,8 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from .errors import ScenarioError
-from .ssd import (NS, OMS_ANNOTATION, PARAMETER_SET, SSD_NAME, Scenario, _parse, identifier,
-                  oms_annotation, read_scenario, resolve_path)
+from .ssd import NS, OMS_ANNOTATION, PARAMETER_SET, SSD_NAME, Scenario, parse, read_scenario, resolve_path
+from .ssd_writer import identifier, oms_annotation
 
 
 def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str | Path | None = None) -> Path:
@@ -23,7 +23,7 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
     else:
         ssd = resolve_path(scenario)
         parsed = read_scenario(ssd, fmu_dir=fmu_dir)  # checks the files before packing
-    tree = ET.ElementTree(_parse(ssd, insert_comments=True))      # any encoding; written as UTF-8
+    tree = ET.ElementTree(parse(ssd, insert_comments=True))      # any encoding; written as UTF-8
     fmus: dict[str, Path] = {}
     for el in tree.getroot().iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
         comp = parsed.component(el.get("name"))

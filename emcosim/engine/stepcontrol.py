@@ -1,4 +1,4 @@
-"""Communication steps chosen for a global tolerance (`emcosim run --tolerance TOL`).
+"""Communication steps chosen for a global tolerance (the run's `tolerance`).
 
 What is controlled: the error of the recorded variables at the communication points, each relative
 to the largest magnitude it reaches in the run (the values seen, not a model's scale), over the whole
@@ -49,6 +49,7 @@ from typing import Callable
 from . import implicit
 from .errors import ScenarioError, SimulationError
 from .fmustate import States
+from .history import History, taylor
 
 AIM = 0.5             # aim of the global error, relative to the tolerance
 REJECT = 2.0          # a step with a defect above REJECT * eps is retried
@@ -89,11 +90,6 @@ class StepReport:
                 f"coupling order {self.coupling_order})")
 
 
-def check_tolerance(tolerance: float) -> None:
-    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance < 1):
-        raise ScenarioError(f"tolerance {tolerance!r} must be a number between 0 and 1 (a relative error)")
-
-
 class _Defect:
     """The extrapolation defect of the connected inputs of a copy (module docstring, 1).
 
@@ -117,7 +113,7 @@ class _Defect:
         self.scale = [0.0] * len(self.inputs)
         self.start: list = []
         self.d_start: list[float] = []
-        self.history: list[tuple[float, list]] = []        # (t, start) of the points before (chords)
+        self.history = History()                           # t -> start of the points before (chords)
         self.before: tuple[float, list] | None = None
 
     def observe(self, t: float) -> None:
@@ -132,13 +128,9 @@ class _Defect:
         self.start = start
         if self.chord:
             self.d_start = self.implicit.source_derivatives()
-            history = self.history
-            while history and history[-1][0] >= t:      # a rolled-back step leaves no point behind
-                history.pop()
-            self.before = history[-1] if history else None
+            self.before = self.history.last(t)          # a rolled-back step leaves no point behind
             self.t = t
-            history.append((t, start))
-            del history[:-3]                            # a rollback over two substeps leaves the one before
+            self.history.add(t, start)
 
     def measure(self, h: float) -> float:
         """max |u(t + h) - P(h)| / max |u| after a step of h (after resolve at t + h)."""
@@ -147,10 +139,7 @@ class _Defect:
         slots, scale = self.slots, self.scale
         worst = 0.0
         for i, ((s, _), (v, ders)) in enumerate(zip(self.inputs, self.start)):
-            p, term = v, 1.0
-            for j, dj in enumerate(ders, start=1):
-                term *= h / j
-                p += dj * term
+            p = taylor(v, ders, h)
             new = slots[s]
             sc = max(scale[i], abs(new))
             if sc > 0:
@@ -199,138 +188,189 @@ def check_rollback(stepper, t0: float, h: float) -> None:
                             f"changes {', '.join(bad[:4])}: an FMU does not restore its full state")
 
 
-class _Rejected(Exception):
-    """A step of the main copy made too large a defect."""
+@dataclass
+class _Trial:
+    """One trial of a double step of the main copy (two steps of h) and of the shadow copy (one of 2h) from t."""
+
+    t: float
+    H: float                      # the double step
+    last: bool                    # it ends the run
+    states: list                  # the FMU states at t (rolled back to on rejection)
+    rows: list                    # [(time, row)] of the main copy at its two points
+    worst: float = 0.0            # the main copy's largest defect
+    far_worst: float = 0.0        # the shadow copy's defect
+    end: float = 0.0              # the time reached
+    factor: float | None = None   # None: accepted; else the step is rejected and shrunk by this factor
+    failure: SimulationError | None = None
 
 
-def run(main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: float, h_max: float,
-        coupling_order: int, progress: Callable[[float], None] | None = None,
-        level: float | None = None) -> StepReport:
-    """Error-controlled run of the copies `main` (recorded into `result`) and `shadow` (master's
-    steppers over the same scenario, initialized at t0). h0: first step; h_max: largest step.
-    level: the defect level to start from (default: the aim). When the run's largest estimate
-    misses the aim by far (below LOW or above HIGH times the tolerance, and the steps were not held
-    by h_max), the report's next_level is the level a second run should keep: aim / C with the
-    calibration C of this whole run (tolerance proportionality: the error scales with the level)."""
-    p = coupling_order + 1
-    report = StepReport(tolerance, coupling_order)
-    aim = AIM * tolerance
-    eps = aim if level is None else level
-    capped = macro = 0
-    calibration = 0.0
-    spent = 0.0                                          # integral of the level eps over the run
-    near = far_sum = 0.0                                 # integrals of the two copies' defects
-    fmus = States(main.order + shadow.order, "a rejected step rolls it back")
-    defect, far_defect = _Defect(main), _Defect(shadow)
-    h = min(h0, h_max)
-    h_stable = math.inf
-    t = t0
-    try:
-        for copy in (main, shadow):
-            copy.t = t0
+class StepControl:
+    """The error-controlled run of the copies `main` (recorded into `result`) and `shadow` (steppers over
+    the same scenario, initialized at t0): `run` tries a double step (`try_step`), then `accept`s or
+    `reject`s it, until t_stop. h0: first step; h_max: largest step; coupling_order: the degree of the
+    inputs' polynomials; level: the defect level to start from (default: the aim). When the run's largest
+    estimate misses the aim by far (below LOW or above HIGH times the tolerance, and the steps were not held
+    by h_max), the report's next_level is the level a second run should keep: aim / C with the calibration
+    C of this whole run (tolerance proportionality: the error scales with the level)."""
+
+    def __init__(self, main, shadow, result, t0: float, t_stop: float, tolerance: float, h0: float, h_max: float,
+                 coupling_order: int, progress: Callable[[float], None] | None = None, level: float | None = None):
+        self.main, self.shadow, self.result, self.progress = main, shadow, result, progress
+        self.t0, self.t_stop, self.h_max = t0, t_stop, h_max
+        self.p = coupling_order + 1
+        self.report = StepReport(tolerance, coupling_order)
+        self.aim = AIM * tolerance
+        self.level = level
+        self.eps = self.aim if level is None else level
+        self.capped = self.macro = 0
+        self.calibration = 0.0
+        self.spent = 0.0                                     # integral of the level eps over the run
+        self.near = self.far_sum = 0.0                       # integrals of the two copies' defects
+        self.fmus = States(main.order + shadow.order, "a rejected step rolls it back")
+        self.defect, self.far_defect = _Defect(main), _Defect(shadow)
+        self.h = min(h0, h_max)
+        self.h_stable = math.inf
+        self.t = t0
+
+    def run(self) -> StepReport:
+        try:
+            self.start()
+            while self.t < self.t_stop:
+                trial = self.try_step()
+                if trial.factor is None:
+                    self.accept(trial)
+                else:
+                    self.reject(trial)
+        except SimulationError as exc:
+            exc.result = self.result
+            raise
+        return self.finish()
+
+    def start(self) -> None:
+        for copy in (self.main, self.shadow):
+            copy.t = self.t0
             copy.resolve()
-        row = main.row()
-        result.append(t0, row)
-        scale = [abs(v) for v in row]
-        largest = [0.0] * len(row)                       # largest absolute estimate of each variable
-        while t < t_stop:
-            if main.implicit is not None:
-                h = h_max / RUNG ** math.ceil(math.log(h_max / h, RUNG) - 1e-9)
-            H = min(SUBSTEPS * h, t_stop - t)
-            last = t_stop - (t + H) <= 0.1 * H
-            if last:
-                H = t_stop - t
-            states = fmus.save(t)
-            for copy in (main, shadow):
-                if copy.implicit is not None:               # the inputs agree to a tenth of the defect level
-                    copy.implicit.tolerance = max(ITERATION * eps, implicit.ITERATION_FLOOR)
-            if main.implicit is not None:                  # chords after a target refused order 2
-                p = main.implicit.degree + 1
-            rows, worst, tt = [], 0.0, t
-            try:
-                for j in range(SUBSTEPS):
-                    t_next = t_stop if last and j == SUBSTEPS - 1 else t + (j + 1) * H / SUBSTEPS
-                    defect.observe(tt)
-                    main.step(tt, t_next - tt)
-                    main.t = t_next
-                    main.resolve()
-                    worst = max(worst, defect.measure(t_next - tt))
-                    rows.append((t_next, main.row()))
-                    tt = t_next
-                if worst > REJECT * eps:
-                    raise _Rejected(SAFETY * (eps / worst) ** (1.0 / p))
-                far_defect.observe(t)
-                shadow.step(t, tt - t)
-                shadow.t = tt
-                shadow.resolve()
-                far_worst = far_defect.measure(tt - t)
-                if far_worst > SUBSTEPS ** p * REJECT * eps:
-                    raise _Rejected(0.5)             # the long step left the asymptotic range (unstable?)
-                if worst > 0.1 * eps and far_worst < 0.5 * SUBSTEPS ** p * worst:
-                    raise _Rejected(0.5)             # h and 2h make alike defects: not asymptotic either
-            except (_Rejected, SimulationError) as why:
-                # a defect too large, or an FMU that failed on the long step: roll back, shorter
-                if isinstance(why, SimulationError) and H <= 1e-9 * max(1.0, abs(t)):
-                    raise
-                fmus.restore(states, t)
-                fmus.free(states)
-                for copy in (main, shadow):
-                    copy.t = t
-                    copy.resolve()
-                report.rejected += 1
-                factor = why.args[0] if isinstance(why, _Rejected) else SHRINK
-                h = H / SUBSTEPS * max(SHRINK, min(factor, 0.5))
-                if (not isinstance(why, _Rejected) or factor == 0.5) and main.implicit is None:
-                    h_stable = h                         # a bound learnt from the failure, raised slowly
-                    # (implicit coupling has no stability limit: its step grows back at once)
-                continue
-            fmus.free(states)
-            far = shadow.row()
-            estimate = 0.0
-            near += worst * (tt - t)
-            far_sum += far_worst * (tt - t)
-            richardson = max(SUBSTEPS ** p, far_sum / near if near > 0 else 0.0) - 1
-            for i, (a, b) in enumerate(zip(rows[-1][1], far)):
-                for _, r in rows:
-                    if abs(r[i]) > scale[i]:
-                        scale[i] = abs(r[i])
-                if abs(a - b) / richardson > largest[i]:
-                    largest[i] = abs(a - b) / richardson
-                if scale[i] > 0:
-                    estimate = max(estimate, abs(a - b) / scale[i])
-            estimate /= richardson
-            for tr, r in rows:
-                result.append(tr, r)
-            report.accepted += SUBSTEPS
-            report.h_min = min(report.h_min, H / SUBSTEPS)
-            report.h_max = max(report.h_max, H / SUBSTEPS)
-            spent += eps * (tt - t)
-            calibration = max(calibration, estimate * (tt - t0) / spent)
-            if calibration > 0:
-                eps = max(min(eps, aim / calibration), aim * LEVEL_FLOOR)
-            t = tt
-            factor = SAFETY * (eps / worst) ** (1.0 / p) if worst > 0 else GROW
-            h_stable *= STABLE_GROWTH
-            wanted = H / SUBSTEPS * min(GROW, max(SHRINK, factor))
-            if main.implicit is not None and 1.0 <= factor <= KEEP and not last:
-                wanted = H / SUBSTEPS                # implicit coupling: the iteration's Jacobian stays valid
-            h = min(h_max, h_stable, wanted)
-            macro += 1
-            capped += h < wanted
-            if progress is not None:
-                progress((t - t0) / (t_stop - t0))
-    except SimulationError as exc:
-        exc.result = result
-        raise
-    report.level = eps
-    report.held = capped / macro if macro else 0.0
-    # the norm of the run (module docstring): each variable's largest error over its largest magnitude
-    # over the whole run (during the run only the magnitudes seen so far are known: `estimate` above,
-    # which calibrates eps, is larger early on)
-    report.estimated_error = max((e / s for e, s in zip(largest, scale) if s > 0), default=0.0)
-    E = report.estimated_error
-    if level is None and calibration > 0 and (E > HIGH * tolerance or (E < LOW * tolerance and report.held < 0.9)):
-        report.next_level = aim / calibration
-    if progress is not None:
-        progress(1.0)
-    return report
+        row = self.main.row()
+        self.result.append(self.t0, row)
+        self.scale = [abs(v) for v in row]
+        self.largest = [0.0] * len(row)                      # largest absolute estimate of each variable
+
+    def try_step(self) -> _Trial:
+        """Two steps of h of the main copy and one of 2h of the shadow copy from t; the trial's factor says
+        whether and how to reject it (a defect too large, or an FMU that failed on the long step)."""
+        main, shadow, t, eps = self.main, self.shadow, self.t, self.eps
+        if main.implicit is not None:
+            self.h = self.h_max / RUNG ** math.ceil(math.log(self.h_max / self.h, RUNG) - 1e-9)
+        H = min(SUBSTEPS * self.h, self.t_stop - t)
+        last = self.t_stop - (t + H) <= 0.1 * H
+        if last:
+            H = self.t_stop - t
+        trial = _Trial(t, H, last, self.fmus.save(t), [], end=t)
+        for copy in (main, shadow):
+            if copy.implicit is not None:                    # the inputs agree to a tenth of the defect level
+                copy.implicit.tolerance = max(ITERATION * eps, implicit.ITERATION_FLOOR)
+        if main.implicit is not None:                        # chords after a target refused order 2
+            self.p = main.implicit.degree + 1
+        p = self.p
+        try:
+            tt = t
+            for j in range(SUBSTEPS):
+                t_next = self.t_stop if last and j == SUBSTEPS - 1 else t + (j + 1) * H / SUBSTEPS
+                self.defect.observe(tt)
+                main.step(tt, t_next - tt)
+                main.t = t_next
+                main.resolve()
+                trial.worst = max(trial.worst, self.defect.measure(t_next - tt))
+                trial.rows.append((t_next, main.row()))
+                tt = t_next
+            trial.end = tt
+            if trial.worst > REJECT * eps:
+                trial.factor = SAFETY * (eps / trial.worst) ** (1.0 / p)
+                return trial
+            self.far_defect.observe(t)
+            shadow.step(t, tt - t)
+            shadow.t = tt
+            shadow.resolve()
+            trial.far_worst = self.far_defect.measure(tt - t)
+            if trial.far_worst > SUBSTEPS ** p * REJECT * eps:
+                trial.factor = 0.5                           # the long step left the asymptotic range (unstable?)
+            elif trial.worst > 0.1 * eps and trial.far_worst < 0.5 * SUBSTEPS ** p * trial.worst:
+                trial.factor = 0.5                           # h and 2h make alike defects: not asymptotic either
+        except SimulationError as exc:
+            if H <= 1e-9 * max(1.0, abs(t)):
+                self.fmus.free(trial.states)
+                raise
+            trial.factor, trial.failure = SHRINK, exc
+        return trial
+
+    def reject(self, trial: _Trial) -> None:
+        """Roll both copies back to the trial's start and shorten the step; a bound is learnt from a step
+        that left the asymptotic range or failed (explicit coupling only: implicit coupling has no stability
+        limit, its step grows back at once)."""
+        t = trial.t
+        self.fmus.restore(trial.states, t)
+        self.fmus.free(trial.states)
+        for copy in (self.main, self.shadow):
+            copy.t = t
+            copy.resolve()
+        self.report.rejected += 1
+        self.h = trial.H / SUBSTEPS * max(SHRINK, min(trial.factor, 0.5))
+        if (trial.failure is not None or trial.factor == 0.5) and self.main.implicit is None:
+            self.h_stable = self.h                           # raised slowly (STABLE_GROWTH) from here
+
+    def accept(self, trial: _Trial) -> None:
+        """Record the trial's rows, update the global estimate and the calibration, choose the next step."""
+        self.fmus.free(trial.states)
+        t, tt, H, worst, eps = trial.t, trial.end, trial.H, trial.worst, self.eps
+        far = self.shadow.row()
+        estimate = 0.0
+        self.near += worst * (tt - t)
+        self.far_sum += trial.far_worst * (tt - t)
+        richardson = max(SUBSTEPS ** self.p, self.far_sum / self.near if self.near > 0 else 0.0) - 1
+        scale, largest, rows = self.scale, self.largest, trial.rows
+        for i, (a, b) in enumerate(zip(rows[-1][1], far)):
+            for _, r in rows:
+                if abs(r[i]) > scale[i]:
+                    scale[i] = abs(r[i])
+            if abs(a - b) / richardson > largest[i]:
+                largest[i] = abs(a - b) / richardson
+            if scale[i] > 0:
+                estimate = max(estimate, abs(a - b) / scale[i])
+        estimate /= richardson
+        for tr, r in rows:
+            self.result.append(tr, r)
+        report = self.report
+        report.accepted += SUBSTEPS
+        report.h_min = min(report.h_min, H / SUBSTEPS)
+        report.h_max = max(report.h_max, H / SUBSTEPS)
+        self.spent += eps * (tt - t)
+        self.calibration = max(self.calibration, estimate * (tt - self.t0) / self.spent)
+        if self.calibration > 0:
+            self.eps = max(min(eps, self.aim / self.calibration), self.aim * LEVEL_FLOOR)
+        self.t = tt
+        factor = SAFETY * (self.eps / worst) ** (1.0 / self.p) if worst > 0 else GROW
+        self.h_stable *= STABLE_GROWTH
+        wanted = H / SUBSTEPS * min(GROW, max(SHRINK, factor))
+        if self.main.implicit is not None and 1.0 <= factor <= KEEP and not trial.last:
+            wanted = H / SUBSTEPS                            # implicit coupling: the iteration's Jacobian stays valid
+        self.h = min(self.h_max, self.h_stable, wanted)
+        self.macro += 1
+        self.capped += self.h < wanted
+        if self.progress is not None:
+            self.progress((self.t - self.t0) / (self.t_stop - self.t0))
+
+    def finish(self) -> StepReport:
+        report = self.report
+        report.level = self.eps
+        report.held = self.capped / self.macro if self.macro else 0.0
+        # the norm of the run (module docstring): each variable's largest error over its largest magnitude
+        # over the whole run (during the run only the magnitudes seen so far are known: the estimate of
+        # `accept`, which calibrates eps, is larger early on)
+        report.estimated_error = max((e / s for e, s in zip(self.largest, self.scale) if s > 0), default=0.0)
+        E, tolerance = report.estimated_error, report.tolerance
+        if self.level is None and self.calibration > 0 and (E > HIGH * tolerance or
+                                                            (E < LOW * tolerance and report.held < 0.9)):
+            report.next_level = self.aim / self.calibration
+        if self.progress is not None:
+            self.progress(1.0)
+        return report

@@ -19,8 +19,8 @@ from pathlib import Path
 from components import catalog, maglev, mems
 from components.references import Sinusoid
 
-from ..engine.ssd import (PARAMETER_SET, Component, Connection, Connector, Parameter, Scenario, parameter_set_xml,
-                          system_structure_xml)
+from ..engine.ssd import PARAMETER_SET, Component, Connection, Connector, Parameter, Scenario
+from ..engine.ssd_writer import parameter_set_xml, system_structure_xml
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "scenarios"

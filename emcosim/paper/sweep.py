@@ -111,17 +111,16 @@ def check_parameters(scenario: Scenario, names: list[str], example: dict[str, fl
     """Check every swept name with the master's own checks (component and variable exist, can be set,
     is Real) and return its unit from the FMU's modelDescription ('' if none). `options` names the
     command-line option of each name (--grid or --sample) for the error message."""
-    from ..engine import master
+    from ..engine import binding
     from ..engine.session import check_start_values
 
     for name in names:
         option = (options or {}).get(name, "--grid/--sample")
         try:
             check_start_values(scenario, {name: example[name]})
-        except ScenarioError as exc:                  # the master says --set; the user typed --grid/--sample
-            text = str(exc)
-            raise ScenarioError(option + text[len("--set"):] if text.startswith("--set ") else text) from None
-    instances = master.load(scenario)
+        except ScenarioError as exc:                  # a start value to the engine; the user typed --grid/--sample
+            raise ScenarioError(exc.describe({"start_values": option})) from None
+    instances = binding.load(scenario)
     units = {}
     for name in names:
         comp, _, var_name = name.partition(".")
@@ -190,8 +189,7 @@ def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], stop_time
     try:
         scenario, session = _session(ssd, fmu_dir)
         result = session.run({k: float(v) for k, v in values.items()}, stop_time=stop_time, step_size=step_size,
-                             tolerance=tolerance, coupling_order=coupling_order,
-                             implicit=None if coupling is None else coupling == "implicit")
+                             tolerance=tolerance, coupling_order=coupling_order, coupling=coupling)
         row.update(metrics_of(scenario, values, result))
         row["status"] = "ok"
     except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash

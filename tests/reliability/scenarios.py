@@ -7,7 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, parameter_set_xml, system_structure_xml
+from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario
+from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
 
 from .harness import ROOT
 

@@ -1,0 +1,222 @@
+"""Binding a scenario to its FMUs: each component's modelDescription read and its connectors checked against
+it, the connections checked (causality, type, units: a unit conversion folded into the connection's
+linear transformation), and the parameter values to set (the .ssv files', then the start values asked
+for), each checked against the variable it sets.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from . import fmi, units
+from .errors import OptionError, ScenarioError
+from .instances import Instance
+from .ssd import Scenario, parse_value
+
+TRANSFER_TYPES = ("Real", "Integer", "Boolean")   # what a connection or a recorded variable may carry
+INT_MIN, INT_MAX = -2**31, 2**31 - 1              # fmi2Integer is a 32-bit int
+
+
+class _Where:
+    """Where a value comes from, for messages: an .ssv file's location, or a start value the caller asked
+    for (named as the caller names its start values: option "start_values")."""
+
+    def __init__(self, location: str | None = None, start_value: str | None = None):
+        self.location, self.start_value = location, start_value
+
+    def error(self, problem: str) -> ScenarioError:
+        if self.start_value is None:
+            return ScenarioError(f"{self.location}: {problem}")
+        return OptionError("{start_values} {name}: {problem}", "start_values", name=self.start_value, problem=problem)
+
+
+def load(scenario: Scenario, model_exchange: bool = False) -> dict[str, Instance]:
+    """Read every component's modelDescription and check its connectors against it. model_exchange: the
+    run integrates the FMUs' states as one ODE, so every FMU must offer Model Exchange."""
+    instances = {}
+    for comp in scenario.components:
+        if "." in comp.name:
+            raise ScenarioError(f"{scenario.path}: component name '{comp.name}' must not contain '.'")
+        if not comp.source.is_file():
+            raise ScenarioError(f"{scenario.path}: component '{comp.name}': FMU not found: {comp.source}")
+        try:
+            md = fmi.read_model_description(str(comp.source), validate=False)
+        except Exception as exc:                      # fmpy raises several kinds for broken FMUs
+            raise ScenarioError(f"{comp.source}: cannot read modelDescription.xml "
+                                f"({' '.join(str(exc).split())})") from None
+        if not md.fmiVersion.startswith("2."):
+            raise ScenarioError(f"{comp.source}: not an FMI 2.0 FMU (fmiVersion {md.fmiVersion})")
+        if model_exchange and md.modelExchange is None:
+            raise ScenarioError(f"{comp.source}: component '{comp.name}' is a Co-Simulation-only FMU (no "
+                                "<ModelExchange> in its modelDescription): a Model Exchange run integrates every "
+                                "FMU's states as one ODE")
+        if not model_exchange and md.coSimulation is None:
+            raise ScenarioError(f"{comp.source}: component '{comp.name}' is a Model-Exchange-only FMU (no "
+                                "<CoSimulation>): run the scenario as Model Exchange")
+        inst = Instance(comp.name, comp.source, md, {v.name: v for v in md.modelVariables})
+        for conn in comp.connectors:
+            var = inst.variable(conn.name, scenario)
+            if var.type != conn.type:
+                raise ScenarioError(f"{scenario.path}: type mismatch: connector {comp.name}.{conn.name} is "
+                                    f"{conn.type} but {comp.source.name} declares {var.type}")
+            if conn.kind != var.causality and not (conn.kind == "parameter" and var.causality == "parameter"):
+                raise ScenarioError(f"{scenario.path}: causality mismatch: connector {comp.name}.{conn.name} is "
+                                    f"'{conn.kind}' but {comp.source.name} declares '{var.causality}'")
+        instances[comp.name] = inst
+    return instances
+
+
+def check_connections(scenario: Scenario, instances: dict[str, Instance]) -> list:
+    """Each connection must run from an output to an input of the same type; an input has one source.
+    Returns the connections to run, with the unit conversion between the two ends (SSP: converted
+    to the end's unit, then the connection's LinearTransformation) folded into factor and offset."""
+    fed = {}
+    out = []
+    for c in scenario.connections:
+        for element in (c.start_element, c.end_element):
+            if element not in instances:
+                raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: no component '{element}'")
+        src = instances[c.start_element].variable(c.start_connector, scenario)
+        dst = instances[c.end_element].variable(c.end_connector, scenario)
+        if src.causality != "output":
+            raise ScenarioError(f"{scenario.path}: causality mismatch: connection starts at {c.start}, "
+                                f"which is '{src.causality}', not an output")
+        if dst.causality != "input":
+            raise ScenarioError(f"{scenario.path}: causality mismatch: connection ends at {c.end}, "
+                                f"which is '{dst.causality}', not an input")
+        if src.type != dst.type:
+            raise ScenarioError(f"{scenario.path}: type mismatch: connection {c.start} ({src.type}) -> "
+                                f"{c.end} ({dst.type})")
+        if src.type not in TRANSFER_TYPES:
+            raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: {src.type} "
+                                "connections are not supported")
+        if (c.factor != 1.0 or c.offset != 0.0) and src.type != "Real":
+            raise ScenarioError(f"{scenario.path}: connection {c.start} -> {c.end}: a linear "
+                                "transformation needs Real variables")
+        if c.end in fed:
+            raise ScenarioError(f"{scenario.path}: input {c.end} is fed by both {fed[c.end]} and {c.start}")
+        fed[c.end] = c.start
+        out.append(_with_unit_conversion(scenario, instances, c) if src.type == "Real" else c)
+    return out
+
+
+def _end_unit(scenario: Scenario, inst: Instance, connector: str) -> units.Unit | None:
+    """The unit of one end of a connection: the FMU variable's (from its UnitDefinitions), else the
+    .ssd connector's, else None (unitless)."""
+    var = inst.variables[connector]
+    name = units.unit_of_variable(var)
+    fmu_units = units.of_model_description(inst.model_description)
+    conn = next((k for k in scenario.component(inst.name).connectors if k.name == connector), None)
+    if conn is not None and conn.unit:
+        declared = conn.unit_definition or fmu_units.get(conn.unit) or units.Unit(conn.unit, None)
+        if name is not None:
+            fmu = fmu_units.get(name) or units.Unit(name, None)
+            if units.conversion(declared, fmu) is None:
+                raise ScenarioError(f"{scenario.path}: unit mismatch: connector {inst.name}.{connector} is "
+                                    f"[{conn.unit}] ({declared.dimension()}) but {inst.path.name} declares "
+                                    f"[{name}] ({fmu.dimension()})")
+        else:
+            return declared
+    if name is None:
+        return None
+    return fmu_units.get(name) or units.Unit(name, None)
+
+
+def _with_unit_conversion(scenario: Scenario, instances: dict[str, Instance], c):
+    src = _end_unit(scenario, instances[c.start_element], c.start_connector)
+    dst = _end_unit(scenario, instances[c.end_element], c.end_connector)
+    if c.suppress_unit_conversion or src is None or dst is None:
+        return c
+    ab = units.conversion(src, dst)
+    if ab is None:
+        raise ScenarioError(f"{scenario.path}: unit mismatch: connection {c.start} [{src.name}] "
+                            f"({src.dimension()}) -> {c.end} [{dst.name}] ({dst.dimension()}): "
+                            "the dimensions differ (suppressUnitConversion=\"true\" on the connection "
+                            "to connect them anyway)")
+    a, b = ab
+    if a == 1.0 and b == 0.0:
+        return c
+    return dataclasses.replace(c, factor=c.factor * a, offset=c.factor * b + c.offset)
+
+
+def parameter_values(scenario: Scenario, instances: dict[str, Instance],
+                     overrides: dict[str, str | float]) -> dict[str, list[tuple[object, object]]]:
+    """(variable, value) pairs to set per component: .ssv values (converted to the FMU variable's
+    unit), then overrides, all checked: the variable can be set and is not a connected input, the
+    value has its type, an Integer fits in 32 bits, and values are within a declared min/max."""
+    values: dict[str, dict[str, tuple[object, object]]] = {name: {} for name in instances}
+    fed = {c.end: c.start for c in scenario.connections}
+    for comp in scenario.components:
+        inst = instances[comp.name]
+        where = f"{scenario.path.parent / (comp.parameter_sources[-1] if comp.parameter_sources else scenario.path.name)}"
+        for p in comp.parameters.values():
+            if p.name not in inst.variables:
+                raise ScenarioError(f"{where}: unknown parameter '{comp.name}.{p.name}' (not in {inst.path.name})")
+            var = inst.variables[p.name]
+            what = _Where(f"{where}: parameter '{comp.name}.{p.name}'")
+            _check_settable(var, what, inst, fed.get(f"{comp.name}.{p.name}"))
+            if var.type != p.type and not (var.type == "Real" and p.type == "Integer"):
+                raise ScenarioError(f"{where}: type mismatch: parameter '{comp.name}.{p.name}' is {p.type} "
+                                    f"but {inst.path.name} declares {var.type}")
+            value = float(p.value) if var.type == "Real" else p.value
+            if p.unit and var.type == "Real":
+                value = _convert_unit(value, p, var, inst, what)
+            values[comp.name][p.name] = (var, _check_range(value, var, what, inst))
+    for full, raw in overrides.items():
+        comp_name, _, var_name = full.partition(".")
+        what = _Where(start_value=full)
+        if comp_name not in instances or not var_name:
+            raise what.error(f"no component '{comp_name}' in {scenario.path.name} (components: {', '.join(instances)})")
+        inst = instances[comp_name]
+        if var_name not in inst.variables:
+            raise what.error(f"unknown variable '{var_name}' (not in {inst.path.name})")
+        var = inst.variables[var_name]
+        _check_settable(var, what, inst, fed.get(full))
+        if isinstance(raw, str):
+            try:
+                value = parse_value(raw, var.type, "")
+            except ScenarioError:
+                raise what.error(f"value {raw!r} is not a valid {var.type}") from None
+        else:
+            value = raw
+        if var.type == "Real":
+            value = float(value)
+        values[comp_name][var_name] = (var, _check_range(value, var, what, inst))
+    return {name: list(v.values()) for name, v in values.items()}
+
+
+def _convert_unit(value: float, p, var, inst: Instance, what: _Where) -> float:
+    """An .ssv value in the parameter's unit, converted to the unit of the FMU variable."""
+    fmu_units = units.of_model_description(inst.model_description)
+    source = p.unit_definition or fmu_units.get(p.unit)
+    if source is None:
+        raise what.error(f"unit '{p.unit}' is defined neither in the file's ssv:Units nor in "
+                         f"{inst.path.name}'s UnitDefinitions")
+    name = units.unit_of_variable(var)
+    target = (fmu_units.get(name) or units.Unit(name, None)) if name else units.Unit("1", (0.0,) * len(units.BASE))
+    ab = units.conversion(source, target)
+    if ab is None:
+        raise what.error(f"unit mismatch: the value is in [{p.unit}] ({source.dimension()}) but "
+                         f"{inst.path.name} declares {var.name} in [{name or 'no unit'}] ({target.dimension()})")
+    return ab[0] * value + ab[1]
+
+
+def _check_range(value, var, what: _Where, inst: Instance):
+    """Refuse an Integer outside 32 bits (fmi2Integer would wrap it) and a value outside the
+    variable's declared min/max."""
+    if var.type == "Integer" and not isinstance(value, bool) and not INT_MIN <= value <= INT_MAX:
+        raise what.error(f"value {value} does not fit an FMI Integer (32 bits: {INT_MIN} .. {INT_MAX})")
+    if var.type in ("Real", "Integer"):
+        for bound, ok in ((var.min, lambda b: value >= b), (var.max, lambda b: value <= b)):
+            if bound is not None and not ok(float(bound)):
+                raise what.error(f"value {value} is outside [{var.min if var.min is not None else '-inf'}, "
+                                 f"{var.max if var.max is not None else 'inf'}] declared by {inst.path.name}")
+    return value
+
+
+def _check_settable(var, where: _Where, inst: Instance, source: str | None = None) -> None:
+    if var.causality not in ("parameter", "input") or var.variability == "constant":
+        raise where.error(f"causality mismatch: {inst.path.name} declares it "
+                          f"{var.causality} ({var.variability}); only parameters and inputs can be set")
+    if var.causality == "input" and source is not None:
+        raise where.error(f"input is connected (fed by {source}); the master sets it from the "
+                          "connection, a start value would be ignored")

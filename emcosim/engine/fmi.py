@@ -1,0 +1,46 @@
+"""The engine's one adapter to fmpy's FMI 2.0 classes: reading a modelDescription, instantiating an FMU for
+Co-Simulation (fmpy's FMU2Slave) or Model Exchange (FMU2Model) with a logger, and the raw ctypes function
+of an FMI call.
+
+Works around: fmpy's Python wrappers (`slave.getReal(...)`, ...) convert their arguments and check the
+status on every call, a Python layer of about 1-2 us per call on this project's machine (docs/scenarios.md);
+the master calls the FMI functions of preallocated arrays millions of times. fmpy keeps the raw functions
+in its private `_functions` dict; this module is the one place that reads it (`raw`).
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from fmpy import calloc, free, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Model, FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2EventInfo, fmi2FMUstate)
+
+__all__ = ["FMICallException", "STATUS", "fmi2EventInfo", "fmi2FMUstate", "instantiate", "raw", "read_model_description"]
+
+STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+
+
+def instantiate(model_description, unzipdir: str, name: str, model_exchange: bool,
+                log: Callable[[int, str], None]):
+    """An instantiated FMU2Slave (Co-Simulation) or FMU2Model (Model Exchange) whose messages go to
+    log(status, text), and the ctypes callbacks (keep them alive as long as the instance). Raises fmpy's
+    exception if fmi2Instantiate returns NULL."""
+    def logger(component, instance_name, status, category, message):
+        log(status, message.decode("utf-8", "replace") if message else "")
+
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    interface = model_description.modelExchange if model_exchange else model_description.coSimulation
+    cls = FMU2Model if model_exchange else FMU2Slave
+    fmu = cls(guid=model_description.guid, unzipDirectory=unzipdir, modelIdentifier=interface.modelIdentifier,
+              instanceName=name)
+    fmu.instantiate(callbacks=callbacks, loggingOn=True)
+    return fmu, callbacks
+
+
+def raw(fmu, function: str):
+    """The raw ctypes function `function` ("fmi2GetReal", ...) of an fmpy FMU instance (module docstring)."""
+    return fmu._functions[function]

@@ -1,0 +1,79 @@
+"""The FMU instances of a scenario: what the engine knows of each (`Instance`), creating and freeing them."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import fmi, tempdirs
+from .errors import ScenarioError
+from .archive import extract_archive
+from .ssd import Scenario
+
+
+@dataclass
+class Instance:
+    """One FMU of the scenario: its component name, its .fmu, modelDescription and variables by name, the
+    fmpy instance once instantiated (`fmu`) and the messages it logged ("[status] text")."""
+
+    name: str
+    path: Path
+    model_description: object
+    variables: dict                                  # name -> fmpy ModelVariable
+    fmu: object | None = None
+    messages: list[str] = field(default_factory=list)
+    callbacks: object = None
+    model_exchange: bool = False                     # instantiated for Model Exchange
+
+    def variable(self, name: str, scenario: Scenario):
+        try:
+            return self.variables[name]
+        except KeyError:
+            raise ScenarioError(f"{scenario.path}: unknown variable '{self.name}.{name}' "
+                                f"(not in {self.path.name})") from None
+
+    def raw(self, function: str):
+        """The raw ctypes function of an FMI call of this instance (fmi.raw)."""
+        return fmi.raw(self.fmu, function)
+
+    @property
+    def component(self):
+        """The fmi2Component handle of the instance."""
+        return self.fmu.component
+
+
+def instantiate(inst: Instance, workdirs: list, model_exchange: bool = False) -> None:
+    """Unpack the FMU into a temporary folder of this process (listed in `workdirs`) and instantiate it."""
+    unzipdir = str(tempdirs.make(inst.name))          # emcosim-PID-...: removed at the next start if killed
+    workdirs.append(unzipdir)
+    extract_archive(inst.path, unzipdir)             # within the archive limits (a zip bomb is refused)
+
+    def log(status: int, text: str) -> None:
+        inst.messages.append(f"[{fmi.STATUS[status] if 0 <= status < 6 else status}] {text}")
+
+    try:
+        inst.fmu, inst.callbacks = fmi.instantiate(inst.model_description, unzipdir, inst.name, model_exchange, log)
+    except Exception:
+        raise ScenarioError(f"{inst.path}: component '{inst.name}' could not be instantiated"
+                            f"{last_message(inst)}") from None
+    inst.model_exchange = model_exchange
+
+
+def free(inst: Instance) -> None:
+    """fmi2Terminate (if possible) and fmi2FreeInstance; the instance is then uninstantiated."""
+    if inst.fmu is None:
+        return
+    try:
+        inst.fmu.terminate()
+    except Exception:
+        pass
+    try:
+        inst.fmu.freeInstance()
+    except Exception:
+        pass
+    inst.fmu = None
+
+
+def last_message(inst: Instance) -> str:
+    """': <the last message that is not [ok]>', or '' (for error messages)."""
+    errors = [m for m in inst.messages if not m.startswith("[ok]")]
+    return f": {' '.join(errors[-1].split())}" if errors else ""

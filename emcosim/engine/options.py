@@ -1,0 +1,146 @@
+"""The settings of a run, checked in one place: `RunOptions` (what a caller asks for) and `experiment`
+(the horizon and steps of one scenario with them). The Python API (`master.simulate`, `Simulation.run`),
+the sweep and the command line's run, sweep and export all pass through here, so a setting is refused
+the same way everywhere, before any FMU is loaded.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .errors import LimitError, OptionError
+
+MAX_STEPS = 10**8          # more communication steps must be confirmed (max_steps)
+MAX_COUPLING_ORDER = 3     # the highest derivative order the master passes on a connection
+COUPLINGS = ("explicit", "implicit")
+INTERFACE_TYPES = ("CoSimulation", "ModelExchange")     # fmpy's spelling (fmpy simulate --interface-type)
+SOLVERS = ("LSODA", "BDF", "Radau")                      # scipy's, for Model Exchange runs
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What a run is asked to do (None: the scenario's choice).
+
+    stop_time, step_size     the horizon [s] and the communication step [s] (the first step with a tolerance)
+    tolerance                relative error the recorded variables keep (error-controlled steps; Model
+                             Exchange: the solver's rtol)
+    max_step                 the largest step [s] a tolerance may choose
+    coupling                 "explicit" or "implicit" (Co-Simulation)
+    coupling_order           derivatives passed on the connections, 0..MAX_COUPLING_ORDER (explicit coupling)
+    max_steps                refuse a run of more communication steps (a step of 1e-15 s would run for years)
+    interface_type           "CoSimulation" (the master steps the FMUs) or "ModelExchange" (one ODE of all
+                             the FMUs' states, integrated by scipy)
+    solver                   the scipy solver of a Model Exchange run (default LSODA)
+    """
+
+    stop_time: float | None = None
+    step_size: float | None = None
+    tolerance: float | None = None
+    max_step: float | None = None
+    coupling: str | None = None
+    coupling_order: int | None = None
+    max_steps: float = MAX_STEPS
+    interface_type: str = "CoSimulation"
+    solver: str | None = None
+
+    def __post_init__(self) -> None:
+        check(self)
+
+    @property
+    def model_exchange(self) -> bool:
+        return self.interface_type == "ModelExchange"
+
+
+def _shown(value) -> str:
+    return f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else repr(value)
+
+
+def _positive(value: float | None, option: str) -> None:
+    if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise OptionError("{%s} {value}: must be a positive number" % option, option, value=_shown(value))
+
+
+def check(options: RunOptions) -> None:
+    """An OptionError for settings that cannot make a run, whatever the scenario."""
+    _positive(options.step_size, "step_size")
+    _positive(options.max_step, "max_step")
+    if options.tolerance is not None and not (isinstance(options.tolerance, (int, float))
+                                              and math.isfinite(options.tolerance) and 0 < options.tolerance < 1):
+        raise OptionError("{tolerance} {value}: must be a number between 0 and 1 (a relative error)", "tolerance",
+                          value=_shown(options.tolerance))
+    if options.max_step is not None and options.tolerance is None:
+        raise OptionError("{max_step} bounds the steps that {tolerance} chooses; without {tolerance} the steps are "
+                          "fixed: give {step_size}", "max_step", "tolerance", "step_size")
+    if options.coupling is not None and options.coupling not in COUPLINGS:
+        raise OptionError("{coupling} {value!r}: must be one of " + ", ".join(COUPLINGS), "coupling",
+                          value=options.coupling)
+    order = options.coupling_order
+    if order is not None and not (isinstance(order, int) and not isinstance(order, bool)
+                                  and 0 <= order <= MAX_COUPLING_ORDER):
+        raise OptionError("{coupling_order} {value!r}: must be an integer from 0 to %d" % MAX_COUPLING_ORDER,
+                          "coupling_order", value=order)
+    if options.coupling == "implicit" and order is not None:
+        raise OptionError("{coupling_order} {value} sets the derivatives of explicit coupling; {coupling} implicit "
+                          "passes none (it sets its inputs' polynomials itself, from the end of each step)",
+                          "coupling_order", "coupling", value=order)
+    if not (isinstance(options.max_steps, (int, float)) and options.max_steps > 0):
+        raise OptionError("{max_steps} {value}: must be a positive number", "max_steps", value=_shown(options.max_steps))
+    if options.interface_type not in INTERFACE_TYPES:
+        raise OptionError("{interface_type} {value!r}: must be one of " + ", ".join(INTERFACE_TYPES),
+                          "interface_type", value=options.interface_type)
+    if options.solver is not None and options.solver not in SOLVERS:
+        raise OptionError("{solver} {value!r}: must be one of " + ", ".join(SOLVERS), "solver", value=options.solver)
+    if options.solver is not None and not options.model_exchange:
+        raise OptionError("{solver} chooses the integrator of a Model Exchange run; give {interface_type} "
+                          "ModelExchange, or no solver", "solver", "interface_type")
+    if options.model_exchange:
+        for name in ("coupling", "coupling_order", "max_step"):
+            if getattr(options, name) is not None:
+                raise OptionError("{%s} is a setting of Co-Simulation runs; a Model Exchange run (one ODE, "
+                                  "{interface_type} ModelExchange) takes {tolerance} and {solver}" % name,
+                                  name, "interface_type", "tolerance", "solver")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """The horizon and steps of one run of one scenario: start and stop time [s], the communication
+    step [s] (the first one with a tolerance), the largest step with a tolerance [s]."""
+
+    start_time: float
+    stop_time: float
+    step_size: float
+    max_step: float | None
+
+
+def experiment(scenario, options: RunOptions) -> Experiment:
+    """The scenario's horizon and steps overridden by `options`; a LimitError / OptionError if they do not
+    make a run (or make more than max_steps communication steps)."""
+    t0 = scenario.start_time
+    t_stop = scenario.stop_time if options.stop_time is None else options.stop_time
+    h = scenario.step_size if options.step_size is None else options.step_size
+    where = str(scenario.path)
+    if t_stop is None or h is None:
+        raise OptionError("{where}: no stop time / step size in the scenario (give {stop_time} and {step_size})",
+                          "stop_time", "step_size", where=where)
+    if not (math.isfinite(t_stop) and t_stop > t0):
+        raise OptionError("{where}: {stop_time} {t_stop} must be after the start time {t0}", "stop_time",
+                          where=where, t_stop=t_stop, t0=t0)
+    if not (math.isfinite(h) and h > 0):
+        raise OptionError("{where}: {step_size} {h} must be positive", "step_size", where=where, h=h)
+    max_step = None
+    if options.tolerance is not None and not options.model_exchange:
+        max_step = (t_stop - t0) / 50 if options.max_step is None else options.max_step
+    steps = (t_stop - t0) / h
+    if not math.isfinite(steps):
+        raise OptionError("{where}: stop time {t_stop:g} s with step size {h:g} s: too many communication steps to "
+                          "count", "stop_time", where=where, t_stop=t_stop, h=h)
+    edge = max(abs(t0), abs(t_stop))
+    if h < 4 * math.ulp(edge):
+        raise OptionError("{where}: step size {h:g} s is below the resolution of time near t = {edge:g} s (double "
+                          "precision: {ulp:.3g} s)", "step_size", where=where, h=h, edge=edge, ulp=math.ulp(edge))
+    if steps > options.max_steps and not options.model_exchange:
+        raise LimitError("{where}: stop time {t_stop:g} s with step size {h:g} s makes {steps:.3g} communication "
+                         "steps, more than the limit of {limit:.3g}; give {max_steps} {needed} to run it anyway",
+                         "max_steps", where=where, t_stop=t_stop, h=h, steps=steps, limit=options.max_steps,
+                         needed=math.ceil(steps))
+    return Experiment(t0, t_stop, h, max_step)

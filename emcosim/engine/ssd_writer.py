@@ -1,0 +1,117 @@
+"""Writing SSP files: an .ssd (`system_structure_xml`) and an .ssv (`parameter_set_xml`) from the dataclasses of
+ssd.py, with the annotations other tools need (OpenModelica's fixed-step master, libcosim's and ecos's
+parameter sets)."""
+from __future__ import annotations
+
+import re
+
+from .ssd import EMCOSIM_ANNOTATION, NS, OMS_ANNOTATION, OSP_ANNOTATION, PARAMETER_SET, Parameter, Scenario
+
+
+def format_value(value: float | int | bool | str) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def parameter_set_xml(name: str, parameters: list[Parameter], notes: list[str] = ()) -> str:
+    """The text of an .ssv file; each parameter's description becomes an XML comment before it.
+    Units go into the comments, not into `unit` attributes (SSP wants those declared in ssc:Units)."""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>']
+    lines += [f"<!-- {_comment(n)} -->" for n in notes]
+    lines.append(f'<ssv:ParameterSet xmlns:ssv="{NS["ssv"]}" version="1.0" name="{_esc(name)}">')
+    lines.append("  <ssv:Parameters>")
+    for p in parameters:
+        if p.description:
+            lines.append(f"    <!-- {_comment(p.description)} -->")
+        lines.append(f'    <ssv:Parameter name="{_esc(p.name)}">'
+                     f'<ssv:{p.type} value="{_esc(format_value(p.value))}"/></ssv:Parameter>')
+    lines += ["  </ssv:Parameters>", "</ssv:ParameterSet>", ""]
+    return "\n".join(lines)
+
+
+def identifier(name: str) -> str:
+    """`name` as an identifier (letters, digits, '_'; starting with a letter), as OMSimulator wants
+    model and system names: every other character becomes '_'."""
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", name)
+    return ident if ident[:1].isalpha() else f"s_{ident}"
+
+
+def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float) -> str:
+    """The text of an .ssd file. `sources` maps component names to the FMU paths as written
+    (relative to the .ssd); each component binds the .ssv files in its `parameter_sources`.
+    `scenario.notes` become XML comments at the top, `description`s become attributes. The System
+    is named `identifier(scenario.name)` and carries OpenModelica's fixed-step annotation; the
+    DefaultExperiment carries the OSP one (both give `step_size`)."""
+    ns = " ".join(f'xmlns:{p}="{u}"' for p, u in NS.items())
+    desc = f' description="{_esc(scenario.description)}"' if scenario.description else ""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>']
+    lines += [f"<!-- {_comment(n)} -->" for n in scenario.notes]
+    lines.append(f'<ssd:SystemStructureDescription {ns} version="1.0" name="{_esc(scenario.name)}"{desc}>')
+    lines.append(f'  <ssd:System name="{_esc(identifier(scenario.name))}">')
+    lines.append("    <ssd:Elements>")
+    for c in scenario.components:
+        cdesc = f' description="{_esc(c.description)}"' if c.description else ""
+        lines.append(f'      <ssd:Component name="{_esc(c.name)}" type="application/x-fmu-sharedlibrary" '
+                     f'source="{_esc(sources[c.name])}"{cdesc}>')
+        lines.append("        <ssd:Connectors>")
+        for k in c.connectors:
+            lines.append(f'          <ssd:Connector name="{_esc(k.name)}" kind="{k.kind}"><ssc:{k.type}/></ssd:Connector>')
+        lines.append("        </ssd:Connectors>")
+        if c.parameter_sources:
+            lines.append("        <ssd:ParameterBindings>")
+            lines += [f'          <ssd:ParameterBinding source="{_esc(s)}"/>' for s in c.parameter_sources]
+            lines.append("        </ssd:ParameterBindings>")
+        lines.append("      </ssd:Component>")
+    lines.append("    </ssd:Elements>")
+    lines.append("    <ssd:Connections>")
+    for k in scenario.connections:
+        attrs = (f'startElement="{_esc(k.start_element)}" startConnector="{_esc(k.start_connector)}" '
+                 f'endElement="{_esc(k.end_element)}" endConnector="{_esc(k.end_connector)}"')
+        if k.factor != 1.0 or k.offset != 0.0:
+            lines.append(f"      <ssd:Connection {attrs}>")
+            lines.append(f'        <ssc:LinearTransformation factor="{k.factor!r}" offset="{k.offset!r}"/>')
+            lines.append("      </ssd:Connection>")
+        else:
+            lines.append(f"      <ssd:Connection {attrs}/>")
+    lines.append("    </ssd:Connections>")
+    lines += ["    <ssd:Annotations>", *oms_annotation(step_size, "      "), "    </ssd:Annotations>"]
+    lines.append("  </ssd:System>")
+    stop = f' stopTime="{scenario.stop_time!r}"' if scenario.stop_time is not None else ""
+    lines.append(f'  <ssd:DefaultExperiment startTime="{scenario.start_time!r}"{stop}>')
+    lines.append("    <ssd:Annotations>")
+    lines.append(f'      <ssc:Annotation type="{OSP_ANNOTATION}">')
+    lines.append(f'        <osp:Algorithm><osp:FixedStepAlgorithm baseStepSize="{step_size!r}"/></osp:Algorithm>')
+    lines.append("      </ssc:Annotation>")
+    if scenario.coupling is not None:
+        lines.append(f'      <ssc:Annotation type="{EMCOSIM_ANNOTATION}">')
+        lines.append(f'        <emcosim:Coupling method="{scenario.coupling}"/>')
+        lines.append("      </ssc:Annotation>")
+    lines.append("    </ssd:Annotations>")
+    lines.append("  </ssd:DefaultExperiment>")
+    lines += ["</ssd:SystemStructureDescription>", ""]
+    return "\n".join(lines)
+
+
+def oms_annotation(step_size: float, indent: str = "") -> list[str]:
+    """OpenModelica's annotation of a fixed-step co-simulation system (what OMSimulator writes and
+    reads: it must be the first ssc:Annotation of the System's ssd:Annotations)."""
+    return [indent + line for line in [
+        f'<ssc:Annotation type="{OMS_ANNOTATION}">',
+        "  <oms:Annotations>",
+        "    <oms:SimulationInformation>",
+        f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="0.0001" '
+        'relativeTolerance="0.0001"/>',
+        "    </oms:SimulationInformation>",
+        "  </oms:Annotations>",
+        "</ssc:Annotation>"]]
+
+
+def _esc(s: str) -> str:
+    return (str(s).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;"))
+
+
+def _comment(s: str) -> str:
+    return " ".join(str(s).replace("--", "- -").split())

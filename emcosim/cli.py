@@ -27,7 +27,8 @@ from .engine.errors import Interrupted, ScenarioError, SimulationError
 FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "--tolerance", "max_step": "--max-step",
          "coupling": "--coupling", "coupling_order": "--coupling-order", "max_steps": "--max-steps",
          "start_values": "--set", "max_bytes": "--ssp-max-size", "max_files": "--ssp-max-files",
-         "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver"}
+         "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver",
+         "solver_steps": "--solver-steps", "rtol": "--rtol"}
 
 
 def scenario_dirs() -> list[Path]:
@@ -36,7 +37,7 @@ def scenario_dirs() -> list[Path]:
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
-NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius")
+NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius", "--rtol")
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
@@ -134,9 +135,14 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--interface-type", choices=("CoSimulation", "ModelExchange"), default="CoSimulation",
                      help="CoSimulation (default): the master steps every FMU; ModelExchange: every FMU is "
                           "instantiated for Model Exchange and their states are integrated as one ODE by scipy "
-                          "(--solver, at rtol --tolerance, default 1e-6), rows every --step-size")
+                          "(--solver): one solve at --rtol (default 1e-6), or the solves that keep the global error "
+                          "within --tolerance; rows every --step-size")
+    run.add_argument("--rtol", type=float, help="the solver's relative tolerance of a ModelExchange run [1] "
+                                                "(absolute: rtol times each state's nominal value)")
     run.add_argument("--solver", choices=("LSODA", "BDF", "Radau"),
                      help="scipy's integrator of a ModelExchange run (default LSODA)")
+    run.add_argument("--solver-steps", action="store_true",
+                     help="a ModelExchange run records a row at every step of the solver instead of every --step-size")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
@@ -278,7 +284,8 @@ def run_options(args):
                       max_step=getattr(args, "max_step", None), coupling=args.coupling,
                       coupling_order=args.coupling_order, max_steps=getattr(args, "max_steps", None) or MAX_STEPS,
                       interface_type=getattr(args, "interface_type", "CoSimulation"),
-                      solver=getattr(args, "solver", None))
+                      rtol=getattr(args, "rtol", None), solver=getattr(args, "solver", None),
+                      solver_steps=getattr(args, "solver_steps", False))
 
 
 def cmd_run(args) -> int:

@@ -38,6 +38,7 @@ from .errors import ScenarioError, SimulationError
 from .fmi import FMICallException
 from .fmustate import States
 from .instances import Instance, last_message
+from .model_exchange import simulate_model_exchange
 from .options import MAX_STEPS, Experiment, RunOptions, experiment
 from .plan import Plan, make_plan, n_slots
 from .outputs import ResultFile
@@ -55,7 +56,8 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
              timing: dict | None = None, coupling_order: int | None = None,
              max_step: float | None = None, sink: ResultFile | None = None,
              max_steps: float = MAX_STEPS, coupling: str | None = None,
-             interface_type: str = "CoSimulation", solver: str | None = None) -> Result:
+             interface_type: str = "CoSimulation", rtol: float | None = None, solver: str | None = None,
+             solver_steps: bool = False) -> Result:
     """Run `scenario` once and return the recorded values at every communication point.
 
     start_values: "component.variable" -> value (text or number), overriding the .ssv values.
@@ -75,8 +77,10 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
         step. None (default): the scenario's choice (its emcosim:Coupling annotation), explicit if it makes
         none or if a coupling_order is given.
     interface_type: "CoSimulation" (default) or "ModelExchange": every FMU instantiated for Model Exchange
-        and their states integrated as one ODE by scipy's `solver` (LSODA, BDF or Radau) at rtol
-        `tolerance` (model_exchange.py); the rows are at t0 + n step_size.
+        and their states integrated as one ODE by scipy's `solver` (LSODA, BDF or Radau): one solve at the
+        solver's relative tolerance `rtol` (default 1e-6), or, with a `tolerance`, the solves that keep that
+        global error (model_exchange.py); the rows are at t0 + n step_size, or at every step of the solver
+        with `solver_steps`. `result.model_exchange` reports the steps, right-hand sides and events.
     timing: if a dict is given, the master fills in the wall time of the run ('total', from
         initialization to the end), the part spent inside FMU calls ('fmu'), the number of
         communication steps ('steps') and FMUs ('fmus'), the time inside each FMU ('per_fmu',
@@ -92,10 +96,9 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
     """
     options = RunOptions(stop_time=stop_time, step_size=step_size, tolerance=tolerance, max_step=max_step,
                          coupling=coupling, coupling_order=coupling_order, max_steps=max_steps,
-                         interface_type=interface_type, solver=solver)
+                         interface_type=interface_type, rtol=rtol, solver=solver, solver_steps=solver_steps)
     planned = experiment(scenario, options)                 # refuse a bad horizon before loading
     if options.model_exchange:
-        from .model_exchange import simulate_model_exchange
         return simulate_model_exchange(scenario, options, planned, start_values=start_values, record=record,
                                        progress=progress, timing=timing, sink=sink)
     with Simulation(scenario) as simulation:

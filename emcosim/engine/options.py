@@ -30,7 +30,11 @@ class RunOptions:
     max_steps                refuse a run of more communication steps (a step of 1e-15 s would run for years)
     interface_type           "CoSimulation" (the master steps the FMUs) or "ModelExchange" (one ODE of all
                              the FMUs' states, integrated by scipy)
+    rtol                     a Model Exchange run: one solve at the solver's relative tolerance rtol (default 1e-6;
+                             with a tolerance instead, the solves keep that global error: model_exchange.py)
     solver                   the scipy solver of a Model Exchange run (default LSODA)
+    solver_steps             a Model Exchange run records a row at every step its solver takes (default: on
+                             the grid t0 + n step_size)
     """
 
     stop_time: float | None = None
@@ -41,7 +45,9 @@ class RunOptions:
     coupling_order: int | None = None
     max_steps: float = MAX_STEPS
     interface_type: str = "CoSimulation"
+    rtol: float | None = None
     solver: str | None = None
+    solver_steps: bool = False
 
     def __post_init__(self) -> None:
         check(self)
@@ -93,6 +99,19 @@ def check(options: RunOptions) -> None:
     if options.solver is not None and not options.model_exchange:
         raise OptionError("{solver} chooses the integrator of a Model Exchange run; give {interface_type} "
                           "ModelExchange, or no solver", "solver", "interface_type")
+    if options.rtol is not None:
+        if not (isinstance(options.rtol, (int, float)) and math.isfinite(options.rtol) and 0 < options.rtol < 1):
+            raise OptionError("{rtol} {value}: must be a number between 0 and 1", "rtol", value=_shown(options.rtol))
+        if not options.model_exchange:
+            raise OptionError("{rtol} is the solver's tolerance of a Model Exchange run; give {interface_type} "
+                              "ModelExchange (a Co-Simulation run takes {tolerance})", "rtol", "interface_type",
+                              "tolerance")
+        if options.tolerance is not None:
+            raise OptionError("{rtol} (one solve at that solver tolerance) and {tolerance} (solves that keep that "
+                              "global error) exclude each other", "rtol", "tolerance")
+    if options.solver_steps and not options.model_exchange:
+        raise OptionError("{solver_steps}: a Co-Simulation run records at its communication points; give "
+                          "{interface_type} ModelExchange", "solver_steps", "interface_type")
     if options.model_exchange:
         for name in ("coupling", "coupling_order", "max_step"):
             if getattr(options, name) is not None:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from . import dependencies
 from .binding import TRANSFER_TYPES
 from .errors import ScenarioError
+from .fmi import FMICallException
 from .ssd import Scenario
 from .transfer import Transfer
 
@@ -102,3 +103,33 @@ def n_slots(plan: Plan) -> int:
     for t, _ in plan.record:
         n = max([n] + [s + 1 for s in t.slots])
     return max([n] + [s + 1 for s in plan.column_slots])
+
+
+def resolve_values(plan: Plan, slots: list, record: bool = True) -> None:
+    """Get and set every connected value at the current instant, level by level, into `slots` (and, with
+    `record`, the recorded variables that no connection carries). Raises the failing call's
+    FMICallException with the transfer as its `transfer`, or transfer.NonFinite."""
+    transfer = None
+    try:
+        for gets, sets in plan.stages:
+            for transfer, _ in gets:
+                transfer()
+                values = transfer.values
+                for i, s in enumerate(transfer.slots):
+                    slots[s] = values[i]
+            for transfer, sources in sets:
+                values = transfer.values
+                for i, (src, factor, offset) in enumerate(sources):
+                    v = slots[src] if factor == 1.0 and offset == 0.0 else factor * slots[src] + offset
+                    values[i] = v
+                    slots[transfer.slots[i]] = v
+                transfer()
+        if record:
+            for transfer, _ in plan.record:
+                transfer()
+                values = transfer.values
+                for i, s in enumerate(transfer.slots):
+                    slots[s] = values[i]
+    except FMICallException as exc:
+        exc.transfer = transfer
+        raise

@@ -18,7 +18,7 @@ from . import coupling
 from .errors import SimulationError
 from .fmi import STATUS, FMICallException
 from .instances import Instance, last_message
-from .plan import Plan
+from .plan import Plan, resolve_values
 from .ssd import Scenario
 from .transfer import Mirror, NonFinite, Transfer
 
@@ -45,32 +45,17 @@ class Stepper:
         self._values_at: float | None = None              # the values are resolved at this time already
 
     def resolve(self, with_derivatives: bool = True) -> None:
+        """Get and set every connected value at self.t in dependency order (the recorded ones too), then the
+        derivatives (coupling.DerivativePlan); an FMU's failure or a value that is not finite ends the run."""
         slots = self.slots
         if self._values_at == self.t:                     # an implicit step resolved them at its end
             self._values_at = None
             return
         self._values_at = None
         try:
-            for gets, sets in self.plan.stages:
-                for transfer, _ in gets:
-                    transfer()
-                    values = transfer.values
-                    for i, s in enumerate(transfer.slots):
-                        slots[s] = values[i]
-                for transfer, sources in sets:
-                    values = transfer.values
-                    for i, (src, factor, offset) in enumerate(sources):
-                        v = slots[src] if factor == 1.0 and offset == 0.0 else factor * slots[src] + offset
-                        values[i] = v
-                        slots[transfer.slots[i]] = v
-                    transfer()
-            for transfer, _ in self.plan.record:
-                transfer()
-                values = transfer.values
-                for i, s in enumerate(transfer.slots):
-                    slots[s] = values[i]
+            resolve_values(self.plan, slots)
         except FMICallException as exc:
-            self.failed(transfer, exc)
+            self.failed(exc.transfer, exc)
         except NonFinite as exc:
             raise SimulationError(exc.message(self.t)) from None
         if self.derivatives is not None and with_derivatives:

@@ -1,0 +1,633 @@
+"""Model Exchange: every FMU of a scenario instantiated for Model Exchange, and their continuous states
+integrated as one ODE by scipy (`simulate(..., interface_type="ModelExchange")`).
+
+The state vector x is every FMU's continuous states one after the other, each scaled by its nominal value
+(fmi2GetNominalsOfContinuousStates), so that the solver's absolute tolerance rtol means rtol of each state's
+typical magnitude. The right-hand side at (t, x):
+
+1. fmi2SetTime on every FMU, fmi2SetContinuousStates on every FMU with states;
+2. the connected values resolved in dependency order (plan.py, the same plan as a Co-Simulation run): the
+   outputs of level 0 (states, sources), the inputs they feed, the direct-feedthrough outputs of level 1...;
+3. fmi2GetDerivatives of every FMU with states.
+
+The Jacobian dF/dx is assembled by the chain rule from the FMUs' directional derivatives (where every FMU
+provides them): each FMU's d(derivatives, connected outputs)/d(states, connected inputs), one
+fmi2GetDirectionalDerivative per known, then the outputs in dependency order, dy/dx = dy/dx_own +
+dy/du du/dx with du/dx = factor dy_source/dx along each connection. Otherwise the solver takes finite
+differences.
+
+After each solver step the rows on the recording grid t0 + n h are taken from the solver's dense output
+(the FMUs set to the interpolated state), or, with `solver_steps`, one row at every step. Events: the
+FMUs' event indicators are compared between steps; a sign change is located on the dense output (brentq)
+and every FMU enters event mode there (fmi2EnterEventMode, fmi2NewDiscreteStates until none asks for more);
+an FMU that refuses (fmi2Error: e.g. a state on the boundary of its model's domain) or asks to terminate
+ends the run with a SimulationError (the rows so far are kept); changed states restart the solver. Time
+events (nextEventTime) bound the solver's steps. The engine knows no model: any FMI 2.0 Model Exchange FMUs
+wired by an SSP scenario run this way.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+import shutil
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.integrate import BDF, LSODA, Radau
+from scipy.optimize import brentq
+
+from . import binding, instances as instances_
+from .errors import ScenarioError, SimulationError
+from .fmi import STATUS, FMICallException, fmi2EventInfo
+from .instances import Instance, last_message
+from .options import Experiment, RunOptions, experiment
+from .outputs import ResultFile
+from .plan import Plan, make_plan, n_slots, resolve_values
+from .results import Result
+from .ssd import Scenario
+from .transfer import NonFinite
+
+SOLVERS = {"LSODA": LSODA, "BDF": BDF, "Radau": Radau}
+DEFAULT_SOLVER = "LSODA"
+DEFAULT_TOLERANCE = 1e-6          # the solver's rtol when the run asks for neither rtol nor a tolerance
+MAX_EVENT_ITERATIONS = 100        # fmi2NewDiscreteStates rounds of one event
+
+
+@dataclass
+class Statistics:
+    """What the integration cost."""
+
+    solver: str
+    rtol: float
+    steps: int = 0                # accepted solver steps
+    rhs: int = 0                  # right-hand sides (every FMU's derivatives once)
+    jacobians: int = 0            # Jacobians assembled from directional derivatives
+    events: int = 0               # state and time events handled
+    exact_jacobian: bool = False  # from the FMUs' directional derivatives (else finite differences)
+    tolerance: float | None = None        # a run with a tolerance: it,
+    estimated_error: float | None = None  # the estimated global error of the result
+    solves: int = 1                       # and the solves it took (ModelExchangeSimulation)
+
+    def summary(self) -> str:
+        jac = (f"{self.jacobians} Jacobians from the FMUs' directional derivatives" if self.exact_jacobian
+               else "finite-difference Jacobians")
+        events = f", {self.events} events" if self.events else ""
+        control = ""
+        if self.tolerance is not None:
+            control = (f"; tolerance {self.tolerance:g}: {self.solves} solves, estimated error "
+                       f"{self.estimated_error:.2g}")
+        return (f"Model Exchange: {self.solver} at rtol {self.rtol:.3g}: {self.steps} steps, {self.rhs} right-hand "
+                f"sides, {jac}{events}{control}")
+
+
+@dataclass
+class _Unit:
+    """One FMU of the ODE: its raw Model Exchange functions and where its states are in x."""
+
+    inst: Instance
+    offset: int
+    n: int                                          # continuous states
+    nz: int                                         # event indicators
+    calls: dict = field(default_factory=dict)       # FMI function -> raw ctypes function
+    x: object = None                                # ctypes arrays of its states, derivatives, indicators
+    dx: object = None
+    z: object = None
+
+
+class System:
+    """The FMUs of a scenario as one ODE x' = F(t, x) (module docstring), x scaled by the nominals."""
+
+    def __init__(self, scenario: Scenario, instances: dict[str, Instance], connections, plan: Plan):
+        self.scenario, self.instances, self.connections, self.plan = scenario, instances, connections, plan
+        self.slots = [0.0] * n_slots(plan)
+        self.units: list[_Unit] = []
+        offset = 0
+        for inst in instances.values():
+            md = inst.model_description
+            unit = _Unit(inst, offset, len(md.derivatives), int(md.numberOfEventIndicators or 0))
+            for name in ("fmi2SetTime", "fmi2SetContinuousStates", "fmi2GetDerivatives", "fmi2GetEventIndicators",
+                         "fmi2GetContinuousStates", "fmi2GetNominalsOfContinuousStates", "fmi2EnterEventMode",
+                         "fmi2NewDiscreteStates", "fmi2EnterContinuousTimeMode", "fmi2CompletedIntegratorStep"):
+                unit.calls[name] = inst.raw(name)
+            unit.x, unit.dx = (ctypes.c_double * unit.n)(), (ctypes.c_double * unit.n)()
+            unit.z = (ctypes.c_double * unit.nz)()
+            self.units.append(unit)
+            offset += unit.n
+        self.n = offset
+        self.with_states = [u for u in self.units if u.n > 0]
+        self.with_indicators = [u for u in self.units if u.nz > 0]
+        self.step_reporters = [u for u in self.units
+                               if not u.inst.model_description.modelExchange.completedIntegratorStepNotNeeded]
+        self.scale = np.ones(self.n)
+        fed = {c.end_element for c in connections}
+        knowing = [u for u in self.units if u.n > 0 or u.inst.name in fed]     # FMUs whose unknowns depend on x
+        self.jacobian_plan = _JacobianPlan(self) if all(
+            u.inst.model_description.modelExchange.providesDirectionalDerivative for u in knowing) else None
+        self.statistics: Statistics | None = None
+        self.fmu_time = 0.0
+        self._t: float | None = None
+        self.discarded = ""                          # the last fmi2Discard of fmi2GetDerivatives
+
+    # ---- FMI calls ----------------------------------------------------------------------------------
+    def _call(self, unit: _Unit, function: str, *args) -> int:
+        tic = time.perf_counter()
+        status = unit.calls[function](unit.inst.component, *args)
+        self.fmu_time += time.perf_counter() - tic
+        if status > 2 or (status == 2 and function != "fmi2GetDerivatives"):
+            raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' failed in {function} "
+                                  f"(status {STATUS[status] if status < 6 else status}) at t = "
+                                  f"{self._t if self._t is not None else float('nan'):.9g} s{last_message(unit.inst)}")
+        return status
+
+    def set_point(self, t: float, xi: np.ndarray, record: bool = False) -> None:
+        """The FMUs at time t and scaled state xi, their connected values resolved (and the recorded ones)."""
+        if t != self._t:
+            self._t = t
+            for unit in self.units:
+                self._call(unit, "fmi2SetTime", ctypes.c_double(t))
+        x = xi * self.scale
+        for unit in self.with_states:
+            buf = unit.x
+            for i in range(unit.n):
+                buf[i] = x[unit.offset + i]
+            self._call(unit, "fmi2SetContinuousStates", buf, unit.n)
+        self.resolve(t, record)
+
+    def resolve(self, t: float, record: bool = False) -> None:
+        tic = time.perf_counter()
+        try:
+            resolve_values(self.plan, self.slots, record)
+        except FMICallException as exc:
+            inst = exc.transfer.inst
+            raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in {exc.function} at "
+                                  f"t = {t:.9g} s{last_message(inst)}") from None
+        except NonFinite as exc:
+            raise SimulationError(exc.message(t)) from None
+        finally:
+            self.fmu_time += time.perf_counter() - tic
+
+    # ---- the ODE -------------------------------------------------------------------------------------
+    def rhs(self, t: float, xi: np.ndarray) -> np.ndarray:
+        """F(t, x) in scaled states: NaN where an FMU discards the evaluation (fmi2Discard: the solver then
+        takes a smaller step)."""
+        self.set_point(t, xi)
+        out = np.empty(self.n)
+        for unit in self.with_states:
+            if self._call(unit, "fmi2GetDerivatives", unit.dx, unit.n) == 2:
+                self.discarded = last_message(unit.inst)
+                out[:] = math.nan
+                return out
+            out[unit.offset:unit.offset + unit.n] = unit.dx
+        self.statistics.rhs += 1
+        return out / self.scale
+
+    def jacobian(self, t: float, xi: np.ndarray) -> np.ndarray:
+        self.set_point(t, xi)
+        self.statistics.jacobians += 1
+        tic = time.perf_counter()
+        J = self.jacobian_plan.assemble()
+        self.fmu_time += time.perf_counter() - tic
+        return J * self.scale[None, :] / self.scale[:, None]
+
+    def indicators(self, t: float, xi: np.ndarray) -> np.ndarray:
+        self.set_point(t, xi)
+        out = []
+        for unit in self.with_indicators:
+            self._call(unit, "fmi2GetEventIndicators", unit.z, unit.nz)
+            out.extend(unit.z)
+        return np.array(out)
+
+    def states(self) -> np.ndarray:
+        x = np.empty(self.n)
+        for unit in self.with_states:
+            self._call(unit, "fmi2GetContinuousStates", unit.x, unit.n)
+            x[unit.offset:unit.offset + unit.n] = unit.x
+        return x
+
+    def nominals(self) -> np.ndarray:
+        s = np.ones(self.n)
+        for unit in self.with_states:
+            self._call(unit, "fmi2GetNominalsOfContinuousStates", unit.x, unit.n)
+            s[unit.offset:unit.offset + unit.n] = [v if math.isfinite(v) and v > 0 else 1.0 for v in unit.x]
+        return s
+
+    def row(self) -> list[float]:
+        slots = self.slots
+        return [slots[s] for s in self.plan.column_slots]
+
+    # ---- events ----------------------------------------------------------------------------------------
+    def event(self, t: float) -> tuple[bool, float | None]:
+        """Every FMU through event mode at t (the FMUs already at t's state): (the states changed, the next
+        time event or None). An FMU that asks to terminate ends the run."""
+        for unit in self.units:
+            self._call(unit, "fmi2EnterEventMode")
+        changed, next_time = self.discrete_states(t)
+        for unit in self.units:
+            self._call(unit, "fmi2EnterContinuousTimeMode")
+        return changed, next_time
+
+    def discrete_states(self, t: float) -> tuple[bool, float | None]:
+        """fmi2NewDiscreteStates of every FMU until none needs another round (values resolved between)."""
+        info = fmi2EventInfo()
+        changed, next_time = False, None
+        for _ in range(MAX_EVENT_ITERATIONS):
+            again = False
+            next_time = None
+            for unit in self.units:
+                self._call(unit, "fmi2NewDiscreteStates", ctypes.byref(info))
+                if info.terminateSimulation:
+                    raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' asked to terminate "
+                                          f"the simulation at t = {t:.9g} s{last_message(unit.inst)}")
+                again = again or bool(info.newDiscreteStatesNeeded)
+                changed = changed or bool(info.valuesOfContinuousStatesChanged)
+                if info.nextEventTimeDefined:
+                    next_time = info.nextEventTime if next_time is None else min(next_time, info.nextEventTime)
+            self.resolve(t)
+            if not again:
+                return changed, next_time
+        raise SimulationError(f"the event at t = {t:.9g} s did not settle within {MAX_EVENT_ITERATIONS} rounds of "
+                              "fmi2NewDiscreteStates")
+
+    def completed_step(self, t: float, xi: np.ndarray) -> bool:
+        """fmi2CompletedIntegratorStep of the FMUs that need it: True if one asks for event mode."""
+        if not self.step_reporters:
+            return False
+        self.set_point(t, xi)
+        enter, terminate = ctypes.c_int(0), ctypes.c_int(0)
+        wanted = False
+        for unit in self.step_reporters:
+            self._call(unit, "fmi2CompletedIntegratorStep", 1, ctypes.byref(enter), ctypes.byref(terminate))
+            if terminate.value:
+                raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' asked to terminate "
+                                      f"the simulation at t = {t:.9g} s{last_message(unit.inst)}")
+            wanted = wanted or bool(enter.value)
+        return wanted
+
+
+class _JacobianPlan:
+    """dF/dx by the chain rule over the connections, from every FMU's directional derivatives (module
+    docstring). Built once: for each FMU the value references of its unknowns (state derivatives and
+    connected outputs) and knowns (states and connected inputs)."""
+
+    def __init__(self, system: System):
+        self.system = system
+        starts = {c.start for c in system.connections}
+        ends = {c.end: c for c in system.connections}
+        self.blocks = []
+        for unit in system.units:
+            inst = unit.inst
+            md = inst.model_description
+            derivatives = [d.variable for d in md.derivatives]
+            states = [d.variable.derivative for d in md.derivatives]
+            outputs = [v for v in md.modelVariables if f"{inst.name}.{v.name}" in starts]
+            inputs = [v for v in md.modelVariables if f"{inst.name}.{v.name}" in ends]
+            unknowns = derivatives + outputs
+            knowns = states + inputs
+            if not unknowns or not knowns:
+                continue
+            vu = (ctypes.c_uint * len(unknowns))(*[v.valueReference for v in unknowns])
+            columns = []
+            for k in knowns:
+                columns.append(((ctypes.c_uint * 1)(k.valueReference), (ctypes.c_double * 1)(1.0)))
+            self.blocks.append((unit, [f"{inst.name}.{v.name}" for v in outputs], len(derivatives), vu,
+                                (ctypes.c_double * len(unknowns))(), columns, len(states),
+                                [f"{inst.name}.{v.name}" for v in inputs], inst.raw("fmi2GetDirectionalDerivative")))
+        self.level = system.plan.level
+        self.feeds: dict[str, list] = {}                 # output -> [(input, factor)]
+        for c in system.connections:
+            self.feeds.setdefault(c.start, []).append((c.end, c.factor))
+
+    def assemble(self) -> np.ndarray:
+        n = self.system.n
+        local = {}
+        for unit, outputs, nd, vu, out, columns, ns, inputs, call in self.blocks:
+            L = np.empty((len(vu), len(columns)))
+            for j, (vk, seed) in enumerate(columns):
+                status = call(unit.inst.component, vu, len(vu), vk, 1, seed, out)
+                if status > 1:
+                    raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' failed in "
+                                          f"fmi2GetDirectionalDerivative{last_message(unit.inst)}")
+                L[:, j] = out
+            local[unit.inst.name] = (unit, outputs, nd, L, ns, inputs)
+        d_input: dict[str, np.ndarray] = {}
+        d_output: dict[str, np.ndarray] = {}
+
+        def row(unit, L_row, ns, inputs) -> np.ndarray:
+            r = np.zeros(n)
+            r[unit.offset:unit.offset + ns] = L_row[:ns]
+            for value, name in zip(L_row[ns:], inputs):
+                if value != 0.0 and name in d_input:
+                    r += value * d_input[name]
+            return r
+
+        names = {o: name for name, (_, outputs, _, _, _, _) in local.items() for o in outputs}
+        for out in sorted(names, key=lambda o: self.level.get(o, 0)):
+            unit, outputs, nd, L, ns, inputs = local[names[out]]
+            r = row(unit, L[nd + outputs.index(out)], ns, inputs)
+            d_output[out] = r
+            for end, factor in self.feeds.get(out, ()):
+                d_input[end] = factor * r
+        J = np.zeros((n, n))
+        for unit, outputs, nd, L, ns, inputs in local.values():
+            for i in range(nd):
+                J[unit.offset + i] = row(unit, L[i], ns, inputs)
+        return J
+
+
+# ---- runs ---------------------------------------------------------------------------------------------
+def simulate_model_exchange(scenario: Scenario, options: RunOptions, planned: Experiment,
+                            start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
+                            progress: Callable[[float], None] | None = None, timing: dict | None = None,
+                            sink: ResultFile | None = None) -> Result:
+    """One Model Exchange run of `scenario` (master.simulate's arguments; module docstring)."""
+    with ModelExchangeSimulation(scenario) as simulation:
+        return simulation.run_experiment(options, planned, start_values=start_values, record=record,
+                                         progress=progress, timing=timing, sink=sink)
+
+
+class ModelExchangeSimulation:
+    """One scenario's FMUs, unpacked and instantiated once for Model Exchange; `run` as often as needed
+    (fmi2Reset between runs, as master.Simulation does for Co-Simulation).
+
+    A run at `rtol` is one solve at the solver's relative tolerance rtol (absolute: rtol times each state's
+    nominal). A run with a `tolerance` keeps the recorded variables' global error within it (each variable's
+    largest error over its largest magnitude in the run): it solves at rtol_A = FIRST tolerance and
+    rtol_B = rtol_A / 10, takes |y_A - y_B| as the error of A and, with tolerance proportionality (the global
+    error falls by at least RATIO per decade of rtol), d / (RATIO - 1) as the error of B; B is the result if
+    that is within AIM tolerance, else a third solve at the rtol that proportionality gives for AIM
+    tolerance. `result.model_exchange` reports the solves and the estimate."""
+
+    FIRST, RATIO, AIM = 0.1, 5.0, 0.5
+
+    def __init__(self, scenario: Scenario, call: Callable[[Callable[[], None]], None] | None = None):
+        self.scenario = scenario
+        self.runs = 0
+        self._call = call or (lambda fn: fn())
+        self._workdirs: list[str] = []
+        self._plans: dict[tuple | None, Plan] = {}
+        self.instances = binding.load(scenario, model_exchange=True)
+        self.connections = binding.check_connections(scenario, self.instances)
+        try:
+            self._instantiate()
+        except BaseException:
+            self.close()
+            raise
+
+    def _instantiate(self) -> None:
+        def instantiate_all() -> None:
+            for inst in self.instances.values():
+                instances_.instantiate(inst, self._workdirs, model_exchange=True)
+        self._call(instantiate_all)
+        self._plans.clear()
+        self.runs = 0
+
+    def _reset(self) -> None:
+        try:
+            for inst in self.instances.values():
+                inst.fmu.reset()
+                inst.messages.clear()
+        except Exception:                     # noqa: BLE001 - any failure: start from scratch
+            for inst in self.instances.values():
+                instances_.free(inst)
+                inst.messages.clear()
+            self._instantiate()
+
+    def close(self) -> None:
+        for inst in self.instances.values():
+            instances_.free(inst)
+        for d in self._workdirs:
+            shutil.rmtree(d, ignore_errors=True)
+        self._workdirs.clear()
+
+    def __enter__(self) -> "ModelExchangeSimulation":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def run(self, stop_time: float | None = None, step_size: float | None = None,
+            start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
+            progress: Callable[[float], None] | None = None, tolerance: float | None = None,
+            rtol: float | None = None, solver: str | None = None, solver_steps: bool = False,
+            timing: dict | None = None, sink: ResultFile | None = None) -> Result:
+        """Run the scenario once; the arguments and errors are those of master.simulate."""
+        options = RunOptions(stop_time=stop_time, step_size=step_size, tolerance=tolerance, rtol=rtol,
+                             interface_type="ModelExchange", solver=solver, solver_steps=solver_steps)
+        return self.run_experiment(options, experiment(self.scenario, options), start_values=start_values,
+                                   record=record, progress=progress, timing=timing, sink=sink)
+
+    def run_experiment(self, options: RunOptions, planned: Experiment,
+                       start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
+                       progress: Callable[[float], None] | None = None, timing: dict | None = None,
+                       sink: ResultFile | None = None) -> Result:
+        parameters = binding.parameter_values(self.scenario, self.instances, start_values or {})
+        name = options.solver or DEFAULT_SOLVER
+        tic = time.perf_counter()
+        if options.tolerance is None:
+            rtol = DEFAULT_TOLERANCE if options.rtol is None else options.rtol
+            result, system = self._solve(parameters, planned, record, name, rtol, progress, options.solver_steps, sink)
+            systems = [system]
+        else:
+            result, systems = self._controlled(parameters, planned, record, name, options.tolerance, progress,
+                                               options.solver_steps, sink)
+        if timing is not None:
+            statistics = result.model_exchange
+            timing.update(total=time.perf_counter() - tic,
+                          fmu=sum(s.fmu_time + sum(t.elapsed for t in _transfers(s.plan)) for s in systems),
+                          steps=statistics.steps, fmus=len(self.instances), rhs=statistics.rhs,
+                          jacobians=statistics.jacobians)
+        return result
+
+    def _controlled(self, parameters, planned: Experiment, record, name: str, tolerance: float, progress,
+                    solver_steps: bool, sink: ResultFile | None) -> tuple[Result, list[System]]:
+        """The solves of a run with a tolerance (class docstring)."""
+        rtol_a = self.FIRST * tolerance
+        a, system_a = self._solve(parameters, planned, record, name, rtol_a, None, False, None)
+        b, system_b = self._solve(parameters, planned, record, name, rtol_a / 10, progress, False, None)
+        d = _difference(a, b)
+        estimate = d / (self.RATIO - 1)
+        systems = [system_a, system_b]
+        if estimate <= self.AIM * tolerance and not solver_steps:
+            result = b
+            if sink is not None:                                 # the rows went to memory: now to the file
+                result = Result(b.columns, sink=sink)
+                for row in b.rows:
+                    result.append(row[0], row[1:])
+                result.model_exchange, result.warnings = b.model_exchange, b.warnings
+        else:
+            rtol_c = max(rtol_a / 10 * self.AIM * tolerance / max(estimate, 1e-300), 1e-13)
+            result, system_c = self._solve(parameters, planned, record, name, rtol_c, progress, solver_steps, sink)
+            systems.append(system_c)
+            estimate *= result.model_exchange.rtol / (rtol_a / 10)
+        statistics = result.model_exchange
+        statistics.tolerance, statistics.estimated_error = tolerance, estimate
+        statistics.solves = len(systems)
+        for s in systems:
+            if s.statistics is not statistics:
+                for field_ in ("steps", "rhs", "jacobians", "events"):
+                    setattr(statistics, field_, getattr(statistics, field_) + getattr(s.statistics, field_))
+        return result, systems
+
+    def _solve(self, parameters, planned: Experiment, record, name: str, rtol: float, progress,
+               solver_steps: bool, sink: ResultFile | None) -> tuple[Result, System]:
+        """One solve at rtol from a freshly reset set of FMUs."""
+        if self.runs > 0:
+            self._reset()
+        self.runs += 1
+        key = None if record is None else tuple(record)
+        if key not in self._plans:
+            self._plans[key] = make_plan(self.scenario, self.instances, self.connections, record)
+        plan = self._plans[key]
+        for transfer in _transfers(plan):
+            transfer.elapsed = 0.0
+        system = System(self.scenario, self.instances, self.connections, plan)
+        if sink is not None:
+            sink.rewind()
+        result = Result(plan.columns, sink=sink)
+        system.statistics = Statistics(name, rtol, exact_jacobian=system.jacobian_plan is not None)
+        result.model_exchange = system.statistics
+        _initialize(system, parameters, planned, rtol)
+        result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
+                           for m in inst.messages if m.startswith("[warning]")]
+        try:
+            _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps)
+        except SimulationError as exc:
+            exc.result = result
+            raise
+        return result, system
+
+
+def _difference(a: Result, b: Result) -> float:
+    """max over the recorded variables of max_t |a - b| / max_t |b| (the rows of two solves on one grid)."""
+    A, B = np.array(a.rows)[:, 1:], np.array(b.rows)[:, 1:]
+    if A.shape != B.shape:
+        raise SimulationError("Model Exchange: two solves recorded different grids")
+    scale = np.max(np.abs(B), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(scale > 0, np.max(np.abs(A - B), axis=0) / scale, 0.0)
+    return float(np.max(rel, initial=0.0))
+
+
+def _transfers(plan: Plan) -> list:
+    return [t for gets, sets in plan.stages for t, _ in gets + sets] + [t for t, _ in plan.record]
+
+
+def _initialize(system: System, parameters, planned: Experiment, rtol: float) -> None:
+    """Set up, set the parameters, propagate the outputs in initialization mode, leave it, settle the
+    initial event, enter continuous-time mode (FMI 2.0, section 3.2.3)."""
+    for unit in system.units:
+        inst = unit.inst
+        fmu = inst.fmu
+        try:
+            fmu.setupExperiment(tolerance=rtol, startTime=planned.start_time, stopTime=planned.stop_time)
+            for var, value in parameters[inst.name]:
+                setter = {"Real": fmu.setReal, "Integer": fmu.setInteger,
+                          "Boolean": fmu.setBoolean, "String": fmu.setString}[var.type]
+                setter([var.valueReference], [value.encode() if var.type == "String" else value])
+            fmu.enterInitializationMode()
+        except FMICallException as exc:
+            raise ScenarioError(f"{inst.path.name}: component '{inst.name}' refused {exc.function} "
+                                f"during initialization{last_message(inst)}") from None
+    system._t = planned.start_time
+    try:
+        system.resolve(planned.start_time)
+        for unit in system.units:
+            try:
+                unit.inst.fmu.exitInitializationMode()
+            except FMICallException as exc:
+                raise ScenarioError(f"{unit.inst.path.name}: component '{unit.inst.name}' failed in {exc.function}"
+                                    f"{last_message(unit.inst)}") from None
+        system.discrete_states(planned.start_time)
+        for unit in system.units:
+            system._call(unit, "fmi2EnterContinuousTimeMode")
+    except SimulationError as exc:
+        raise ScenarioError(f"initialization: {exc}") from None
+    system.scale = system.nominals()
+
+
+def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
+               progress, solver_steps: bool) -> None:
+    t0, t_stop, h = planned.start_time, planned.stop_time, planned.step_size
+    n_rows = max(1, math.ceil((t_stop - t0) / h - 1e-9))
+    grid = [t0 + k * h for k in range(n_rows)] + [t_stop]
+    t = t0
+    xi = system.states() / system.scale
+    system.set_point(t, xi, record=True)
+    result.append(t, system.row())
+    k = 1                                                       # the next grid point to record
+    next_event: float | None = None
+    jac = system.jacobian if system.jacobian_plan is not None else None
+    z = system.indicators(t, xi) if system.with_indicators else None
+    every = max(1, n_rows // 200)
+    while t < t_stop:
+        bound = t_stop if next_event is None else min(t_stop, next_event)
+        solver = solver_class(system.rhs, t, xi, bound, rtol=rtol, atol=rtol, jac=jac)
+        restart = False
+        while solver.status == "running" and not restart:
+            message = solver.step()
+            if solver.status == "failed":
+                raise SimulationError(f"Model Exchange: {type(solver).__name__} failed at t = {solver.t:.9g} s: "
+                                      f"{message}{system.discarded}")
+            system.statistics.steps += 1
+            t_new, x_new = solver.t, solver.y
+            event_at = None
+            if z is not None:
+                z_new = system.indicators(t_new, x_new)
+                crossed = np.flatnonzero(np.sign(z_new) != np.sign(z))
+                if crossed.size:
+                    dense = solver.dense_output()
+                    event_at = min(_locate(system, dense, solver.t_old, t_new, int(i)) for i in crossed)
+                z = z_new
+            if event_at is None and system.completed_step(t_new, x_new):
+                event_at = t_new
+            if event_at is not None:
+                dense = solver.dense_output()
+                x_event = dense(event_at) if event_at < t_new else x_new
+                k = _record(system, result, dense, grid, k, event_at, solver_steps, x_event)
+                system.set_point(event_at, x_event)
+                system.statistics.events += 1
+                changed, next_event = system.event(event_at)
+                t = event_at
+                xi = system.states() / system.scale if changed else x_event
+                z = system.indicators(t, xi) if system.with_indicators else None
+                restart = True
+                continue
+            k = _record(system, result, solver.dense_output(), grid, k, t_new, solver_steps, x_new)
+            t, xi = t_new, x_new
+            if progress is not None and system.statistics.steps % every == 0:
+                progress((t - t0) / (t_stop - t0))
+        if not restart and next_event is not None and t >= next_event and t < t_stop:
+            system.set_point(t, xi)
+            system.statistics.events += 1
+            changed, next_event = system.event(t)
+            if changed:
+                xi = system.states() / system.scale
+    if progress is not None:
+        progress(1.0)
+
+
+def _locate(system: System, dense, t_a: float, t_b: float, i: int) -> float:
+    """The time of indicator i's zero in (t_a, t_b] on the dense output."""
+    def g(tt):
+        return system.indicators(tt, dense(tt))[i]
+    if g(t_a) * g(t_b) > 0:
+        return t_b
+    return brentq(g, t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)), rtol=4 * np.finfo(float).eps)
+
+
+def _record(system: System, result: Result, dense, grid: list[float], k: int, t_end: float, solver_steps: bool,
+            x_end: np.ndarray) -> int:
+    """The rows up to t_end: the grid points (from the dense output), or the step's end (solver_steps)."""
+    if solver_steps:
+        system.set_point(t_end, x_end, record=True)
+        result.append(t_end, system.row())
+        return k
+    while k < len(grid) and grid[k] <= t_end:
+        tk = grid[k]
+        x = x_end if tk >= t_end else dense(tk)
+        system.set_point(tk, x, record=True)
+        result.append(tk, system.row())
+        k += 1
+    return k

@@ -9,13 +9,18 @@ from a first pass at rtol = 1e-6 (see docs/derivations.md, "Monolithic reference
 
 The integration stops cleanly (results so far kept, `message` says why) when the state leaves the
 plant's domain, when the reference becomes infeasible, or when the solver fails.
+
+`simulate` samples the states, u and the target system eta* on an equidistant grid (reports, tests).
+`record` is the benchmark's fair path: the same integration (any of scipy's LSODA, BDF, Radau, each
+with the exact Jacobian) recording only what a co-simulation run records, the plant states and u at
+given communication points; `diagnose` adds eta* afterwards, outside any timing.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import Radau
+from scipy.integrate import BDF, LSODA, Radau
 
 from . import differentiation
 from .controller import Controller
@@ -44,6 +49,30 @@ class Result:
         return self.eta - self.eta_star
 
 
+@dataclass
+class Recording:
+    """What a co-simulation run records at its communication points t: the plant's states eta (its
+    outputs q, p, x_e) and the controller's u. No target system: `diagnose` adds it."""
+
+    t: np.ndarray
+    eta: np.ndarray
+    u: np.ndarray
+    success: bool
+    message: str
+    n_steps: int
+    nfev: int                       # right-hand sides f(eta, u(eta, t)) the solver evaluated
+    njev: int                       # exact Jacobians it evaluated (LSODA: its LU factorisations)
+    scale: np.ndarray
+    method: str
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.eta[:, 0]
+
+
+METHODS = {"Radau": Radau, "BDF": BDF, "LSODA": LSODA}     # scipy's solvers that take an exact Jacobian
+
+
 class ClosedLoop:
     """eta' = f(eta, u(eta, jet(t))) of a plant and a controller (and its reference, if tracking)."""
 
@@ -64,6 +93,14 @@ class ClosedLoop:
     def target(self, t: float) -> np.ndarray:
         return self.controller.target(self.jet(t))
 
+    def controls(self, t: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """u at every sample (t_k, eta_k): what the co-simulated controller outputs."""
+        return np.array([self.u(e, tt) for e, tt in zip(eta, t)])
+
+    def targets(self, t: np.ndarray) -> np.ndarray:
+        """The target system eta*(t_k) at every sample: a diagnostic no co-simulation run computes."""
+        return np.array([self.target(tt) for tt in t])
+
     def rhs(self, t: float, eta: np.ndarray) -> np.ndarray:
         return self.plant.f(eta, self.u(eta, t))
 
@@ -81,11 +118,44 @@ def simulate(controller: Controller, eta0, t_end: float, reference: Reference | 
     controller.plant.check_state(eta0)
     if not (np.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end = {t_end} must be finite and > 0")
-    if scale is None:
-        first = _integrate(loop, eta0, t_end, 201, 1e-6, _first_scale(loop, eta0, t_end), max_step)
-        scale = np.max(np.abs(np.vstack([first.eta, first.eta_star])), axis=0)
-        scale = np.where(scale > 0, scale, 1.0)
-    return _integrate(loop, eta0, t_end, n_samples, rtol, np.asarray(scale, dtype=float), max_step)
+    scale = _default_scale(loop, eta0, t_end, max_step) if scale is None else np.asarray(scale, dtype=float)
+    return _integrate(loop, eta0, t_end, n_samples, rtol, scale, max_step)
+
+
+def record(controller: Controller, eta0, t_grid, reference: Reference | None = None, rtol: float = 1e-10,
+           scale=None, method: str = "Radau", max_step: float = np.inf) -> Recording:
+    """Integrate the closed loop eta' = f(eta, u(eta, t)) (eq. (open-loop elecmech) with the controller's
+    law, ClosedLoop.rhs) from eta0 at t_grid[0] to t_grid[-1] with scipy's `method` (a key of METHODS)
+    and record eta and u at every time of t_grid (increasing), and nothing else."""
+    loop = ClosedLoop(controller, reference)
+    eta0 = np.asarray(eta0, dtype=float)
+    controller.plant.check_state(eta0)
+    t_grid = np.asarray(t_grid, dtype=float)
+    if t_grid.ndim != 1 or len(t_grid) < 2 or not np.all(np.isfinite(t_grid)) or np.any(np.diff(t_grid) <= 0):
+        raise ValueError("t_grid must be finite, increasing and hold at least two times")
+    if method not in METHODS:
+        raise ValueError(f"method {method!r}: one of {', '.join(METHODS)}")
+    if scale is None and t_grid[0] != 0:
+        raise ValueError("the default scale is simulate's, from t = 0: give a scale for a grid from t0 != 0")
+    scale = _default_scale(loop, eta0, t_grid[-1], max_step) if scale is None else np.asarray(scale, dtype=float)
+    run = _march(loop, eta0, t_grid, rtol, scale, max_step, METHODS[method])
+    return Recording(run.t, run.eta, loop.controls(run.t, run.eta), run.success, run.message, run.steps,
+                     run.solver.nfev, run.solver.njev, scale, method)
+
+
+def diagnose(recording: Recording, controller: Controller, reference: Reference | None = None) -> Result:
+    """The recording with the target system eta*(t) of its controller (eq. (desired trajectory) when
+    tracking, the set-point otherwise): the diagnostics a benchmark computes outside its timing."""
+    loop = ClosedLoop(controller, reference)
+    r = recording
+    return Result(r.t, r.eta, r.u, loop.targets(r.t), r.success, r.message, r.n_steps, r.scale)
+
+
+def _default_scale(loop: ClosedLoop, eta0: np.ndarray, t_end: float, max_step: float) -> np.ndarray:
+    """s_i = max_t |eta_i|, |eta*_i| of a first pass at rtol = 1e-6 (module doc)."""
+    first = _integrate(loop, eta0, t_end, 201, 1e-6, _first_scale(loop, eta0, t_end), max_step)
+    scale = np.max(np.abs(np.vstack([first.eta, first.eta_star])), axis=0)
+    return np.where(scale > 0, scale, 1.0)
 
 
 def _first_scale(loop: ClosedLoop, eta0: np.ndarray, t_end: float) -> np.ndarray:
@@ -101,10 +171,27 @@ def _first_scale(loop: ClosedLoop, eta0: np.ndarray, t_end: float) -> np.ndarray
 
 
 def _integrate(loop: ClosedLoop, eta0, t_end, n_samples, rtol, scale, max_step) -> Result:
-    t_grid = np.linspace(0.0, t_end, n_samples)
+    run = _march(loop, eta0, np.linspace(0.0, t_end, n_samples), rtol, scale, max_step, Radau)
+    u, eta_star = loop.controls(run.t, run.eta), loop.targets(run.t)
+    return Result(run.t, run.eta, u, eta_star, run.success, run.message, run.steps, scale)
+
+
+@dataclass
+class _Run:
+    t: np.ndarray
+    eta: np.ndarray
+    success: bool
+    message: str
+    steps: int
+    solver: object
+
+
+def _march(loop: ClosedLoop, eta0, t_grid, rtol, scale, max_step, method) -> _Run:
+    """Step `method` on the scaled states xi = eta / scale from t_grid[0], with the exact Jacobian, and
+    sample eta at t_grid by the solver's dense output; stop cleanly at a domain exit or a failure."""
     fun = lambda t, xi: loop.rhs(t, xi * scale) / scale                      # noqa: E731
     jac = lambda t, xi: loop.jacobian(t, xi * scale) * scale[None, :] / scale[:, None]  # noqa: E731
-    solver = Radau(fun, 0.0, eta0 / scale, t_end, rtol=rtol, atol=rtol, jac=jac, max_step=max_step)
+    solver = method(fun, t_grid[0], eta0 / scale, t_grid[-1], rtol=rtol, atol=rtol, jac=jac, max_step=max_step)
     out = [eta0]
     k = 1                                                       # next grid index to fill
     message, success, steps = "reached t_end", True, 0
@@ -119,13 +206,9 @@ def _integrate(loop: ClosedLoop, eta0, t_end, n_samples, rtol, scale, max_step) 
         except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
             message, success = f"stopped at t = {solver.t:.6g} s: {exc}", False
             break
-        if k < n_samples and t_grid[k] <= solver.t:
+        if k < len(t_grid) and t_grid[k] <= solver.t:
             dense = solver.dense_output()
-            while k < n_samples and t_grid[k] <= solver.t:
+            while k < len(t_grid) and t_grid[k] <= solver.t:
                 out.append(dense(t_grid[k]) * scale)
                 k += 1
-    t = t_grid[:len(out)]
-    eta = np.array(out)
-    u = np.array([loop.u(e, tt) for e, tt in zip(eta, t)])
-    eta_star = np.array([loop.target(tt) for tt in t])
-    return Result(t, eta, u, eta_star, success, message, steps, scale)
+    return _Run(t_grid[:len(out)], np.array(out), success, message, steps, solver)

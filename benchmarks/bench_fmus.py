@@ -35,15 +35,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fmpy import extract, read_model_description   # noqa: E402
-from fmpy.fmi2 import FMU2Slave                      # noqa: E402
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
-from components import maglev, mems, references      # noqa: E402
-from components.plant_step import PlantStepper      # noqa: E402
-from components.proposition1 import Proposition1    # noqa: E402
-from components.proposition2 import Proposition2    # noqa: E402
-from components.theorem2 import Theorem2            # noqa: E402
-from components.theorem3 import Theorem3            # noqa: E402
+from components import maglev, mems, references  # noqa: E402
+from components.plant_step import PlantStepper  # noqa: E402
+from components.proposition1 import Proposition1  # noqa: E402
+from components.proposition2 import Proposition2  # noqa: E402
+from components.theorem2 import Theorem2  # noqa: E402
+from components.theorem3 import Theorem3  # noqa: E402
 
 H = {"MEMS": 1e-6, "Maglev": 1e-3}             # maglev: 1e-3 s, its default experiment's step
 JET = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
@@ -191,8 +191,9 @@ def bench_reference(path: Path, n: int) -> list[tuple[str, float, float]]:
 
 def floor_fmus(folder: Path) -> dict[str, Path]:
     """The two floor FMUs, built into `folder`: "floor" (loader, as the FMUs) and "raw pythonfmu"."""
-    import build
     from pythonfmu import FmuBuilder
+
+    import build
 
     fixtures = ROOT / "tests" / "fixtures"
     floor = build.build_fmus({"FloorGain": fixtures / "emcosim_toy_floor.py"}, folder / "floor")["FloorGain"]
@@ -237,6 +238,7 @@ def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int) ->
     The raw pythonfmu floor runs the old way (libpython preloaded, PYTHONHOME/PYTHONPATH)."""
     import sysconfig
     import tempfile
+
     from tests.c_host import CONTROLLER_INPUTS, compile_c_host, run_in_c_host
 
     cases = {name: (path, {"x": 1.0}, ["y"], 1e-3) for name, path in floors.items()}

@@ -22,11 +22,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from emcosim.engine import master                                             # noqa: E402
-from emcosim.engine.transfer import Transfer                                  # noqa: E402
-from emcosim.engine.outputs import ResultFile                                  # noqa: E402
-from emcosim.engine.ssd import read_scenario                                  # noqa: E402
-from tests.integrity_helpers import build_toys, toy_loop                      # noqa: E402
+from emcosim.engine import master  # noqa: E402
+from emcosim.engine.outputs import ResultFile  # noqa: E402
+from emcosim.engine.ssd import read_scenario  # noqa: E402
+from emcosim.engine.transfer import Transfer  # noqa: E402
+from tests.integrity_helpers import build_toys, toy_loop  # noqa: E402
 
 
 def one(scenario, mode: str, folder: Path, stop_time: float | None) -> tuple[float, float]:

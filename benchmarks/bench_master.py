@@ -57,11 +57,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from components import monolithic as mono                                     # noqa: E402
-from emcosim.engine.master import Simulation                                  # noqa: E402
-from emcosim.engine.ssd import Scenario, read_scenario                         # noqa: E402
-from emcosim.paper import scenarios as paper_scenarios                         # noqa: E402
-from emcosim.paper.reference_check import Truth, monolithic_loop, truth       # noqa: E402
+from components import monolithic as mono  # noqa: E402
+from emcosim.engine.master import Simulation  # noqa: E402
+from emcosim.engine.ssd import Scenario, read_scenario  # noqa: E402
+from emcosim.paper import scenarios as paper_scenarios  # noqa: E402
+from emcosim.paper.reference_check import Truth, monolithic_loop, truth  # noqa: E402
 
 TARGET = 1e-3
 RTOLS = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8]
@@ -254,6 +254,7 @@ def _other_engines(row: dict, s: Scenario, ref: Truth, engines: set[str]) -> Non
     h0 = ZOH_STEP[s.name]
     if "container" in engines:
         from fmpy import simulate_fmu
+
         from emcosim.engine.container import export_container
         with tempfile.TemporaryDirectory() as tmp:
             fmu = export_container(s, Path(tmp) / "loop.fmu", step_size=h0)
@@ -261,7 +262,7 @@ def _other_engines(row: dict, s: Scenario, ref: Truth, engines: set[str]) -> Non
                                                                output=["plant.q"]))
         row["e_container"] = ref.position_error(c["time"], c["plant.q"])
     if "libcosim" in engines:
-        from emcosim.engine.libcosim import _simulate as libcosim_here     # in this process: the engine's time only
+        from emcosim.engine.libcosim import _simulate as libcosim_here  # in this process: the engine's time only
         lc, row["t_libcosim"] = timed(lambda: libcosim_here(s, s.stop_time, h0, None, ["plant.q"]))
         row["e_libcosim"] = ref.position_error(lc.time, lc["plant.q"])
 

@@ -35,9 +35,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from components import catalog                                       # noqa: E402
+from components import catalog  # noqa: E402
 from components.plant_step import PlantStepper, simulate_polynomial  # noqa: E402
-from emcosim.engine.ssd import read_scenario                         # noqa: E402
+from emcosim.engine.ssd import read_scenario  # noqa: E402
 
 # scenario, start time of the recorded segment, step size, hold
 ROWS = [

@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 from emcosim.engine.master import simulate  # noqa: E402
 from emcosim.engine.session import Session  # noqa: E402
 from emcosim.engine.ssd import read_scenario  # noqa: E402
-from emcosim.paper.sweep import _close_on_workers, dask_client, run_all  # noqa: E402
+from emcosim.paper.sweep import close_on_workers, dask_client, run_all  # noqa: E402
 
 
 def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_time: float) -> dict:
@@ -52,7 +52,7 @@ def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_t
         rows = run_all(client, ssd, fmu_dir, runs, stop_time, None, stream=None)
         elapsed = time.perf_counter() - t0
         cpu1 = client.run(time.process_time)
-        _close_on_workers(client)
+        close_on_workers(client)
     failed = sum(r["status"] != "ok" for r in rows)
     return {"workers": workers, "runs": len(rows), "failed": failed, "seconds": elapsed,
             "runs_per_s": len(rows) / elapsed, "startup_s": started - tic, "warmup_s": warmed - started,
@@ -61,7 +61,7 @@ def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_t
 
 def _workers_with_sessions(client) -> int:
     from emcosim.paper import sweep
-    counts = client.run(lambda: len(sweep._sessions))
+    counts = client.run(sweep.session_count)
     return sum(1 for n in counts.values() if n > 0)
 
 
@@ -97,7 +97,8 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     measured = [throughput(ssd, args.fmu_dir, w, values, args.stop_time)
                 for _ in range(args.repeat) for w in (1, 2)]         # interleaved: 1, 2, 1, 2, ...
-    print(f"{'workers':>8} {'runs':>5} {'failed':>6} {'time [s]':>9} {'runs/s':>8} {'start-up [s]':>13} {'warm-up [s]':>12} {'CPU share':>10}")
+    print(f"{'workers':>8} {'runs':>5} {'failed':>6} {'time [s]':>9} {'runs/s':>8} {'start-up [s]':>13} "
+          f"{'warm-up [s]':>12} {'CPU share':>10}")
     for r in measured:
         print(f"{r['workers']:>8} {r['runs']:>5} {r['failed']:>6} {r['seconds']:>9.2f} {r['runs_per_s']:>8.3f} "
               f"{r['startup_s']:>13.2f} {r['warmup_s']:>12.2f} {r['cpu_share']:>10.2f}")

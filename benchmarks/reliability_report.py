@@ -1,6 +1,6 @@
 """Figures and numbers of docs/reliability.md.
 
-Runs the 1000-lifecycle loop of every FMU (tests/reliability/_worker.py, one process per FMU), plots
+Runs the 1000-lifecycle loop of every FMU (tests/reliability/fmu_worker.py, one process per FMU), plots
 the resident memory against the iteration to docs/figures/reliability_rss.png, and prints the growth
 per FMU and the case counts of the last reliability test session (build/reliability/counts.json,
 written by `pytest -m reliability`).
@@ -36,7 +36,8 @@ def main() -> None:
         r = run_worker_once("lifecycle", {"fmu": str(Path(args.fmu_dir) / f"{identifier}.fmu"), "n": args.n,
                                           "h": {"MEMS": 1e-6, "Maglev": 1e-3, "Reference": 1e-3}.get(identifier, 1e-6),
                                           "every": 10, "warmup": 20,
-                                          "inputs": {"u": 25.0} if identifier == "MEMS" else {"u": 0.02} if identifier == "Maglev" else {}})
+                                          "inputs": {"u": 25.0} if identifier == "MEMS"
+                                          else {"u": 0.02} if identifier == "Maglev" else {}})
         assert r["ok"], r
         it = [s[0] for s in r["samples"]]
         rss = [(s[1] - r["rss_before"]) / 2**20 for s in r["samples"]]

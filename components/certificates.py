@@ -424,7 +424,7 @@ class _GEVP:
     Z_i >= 0 proving that none exists."""
 
     def __init__(self, Jy: list[np.ndarray], solver: str):
-        import cvxpy as cp            # imported here: controller FMUs import this module and never solve SDPs
+        import cvxpy as cp  # imported here: controller FMUs import this module and never solve SDPs
         n = Jy[0].shape[0]
         self.cp, self.solver = cp, solver
         # Omega = sum_k x_k E_k over a basis E_k of the symmetric matrices; x[-1] is t. Each LMI is then
@@ -435,8 +435,10 @@ class _GEVP:
                 E = np.zeros((n, n))
                 E[i, j] = E[j, i] = 1.0
                 basis.append(E)
-        I = np.eye(n)
-        vec = lambda A: A.reshape(-1, order="F")
+        identity = np.eye(n)
+
+        def vec(A: np.ndarray) -> np.ndarray:
+            return A.reshape(-1, order="F")
         self.basis = basis
         self.x = cp.Variable(len(basis) + 1)
         self.lam = cp.Parameter()
@@ -445,10 +447,10 @@ class _GEVP:
             C, K = _congruence(J)
             self.C.append(C)
             CEC = [C.T @ E @ C for E in basis]
-            F = np.column_stack([vec(K.T @ P + P @ K) for P in CEC] + [vec(I)])
+            F = np.column_stack([vec(K.T @ P + P @ K) for P in CEC] + [vec(identity)])
             F_lam = np.column_stack([vec(2.0 * P) for P in CEC] + [np.zeros(n * n)])
             self.lmis.append(cp.reshape(-(F @ self.x) - self.lam * (F_lam @ self.x), (n, n), order="F") >> 0)
-        F_Omega = np.column_stack([vec(E) for E in basis] + [-vec(I)])
+        F_Omega = np.column_stack([vec(E) for E in basis] + [-vec(identity)])
         trace = np.array([np.trace(E) for E in basis] + [0.0])
         self.problem = cp.Problem(cp.Maximize(self.x[-1]),
                                   [trace @ self.x == n, cp.reshape(F_Omega @ self.x, (n, n), order="F") >> 0, *self.lmis])

@@ -130,7 +130,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="explicit: the inputs follow polynomials from their sources' derivatives at the start "
                           "of each step; implicit: each step is repeated (FMU-state rollback) until the inputs "
                           "of the FMUs with states agree with their sources at its end, stable on stiff loops at "
-                          "any step (third order; second where a source gives no derivatives; the run prints the trial steps). Default: the scenario's "
+                          "any step (third order; second where a source gives no derivatives; the run prints the "
+                          "trial steps). Default: the scenario's "
                           "(its emcosim:Coupling annotation; `emcosim info` shows it), else explicit")
     run.add_argument("--interface-type", choices=("CoSimulation", "ModelExchange"), default="CoSimulation",
                      help="CoSimulation (default): the master steps every FMU; ModelExchange: every FMU is "
@@ -480,7 +481,8 @@ def cmd_sweep(args) -> int:
             print(f"emcosim: {note}", file=sys.stderr)
         raise
     folder.commit()
-    print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {info['workers']} worker{'s' if info['workers'] != 1 else ''}, "
+    workers = f"{info['workers']} worker{'s' if info['workers'] != 1 else ''}"
+    print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {workers}, "
           f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
     if info["failed"] and args.step_size is None and args.tolerance is None:
         step = f" ({scenario.step_size:g} s)" if scenario.step_size else ""

@@ -113,7 +113,7 @@ def _compiler() -> tuple[str, str]:
 
 
 def _fmi_headers() -> Path:
-    import fmpy                                              # the FMI 2.0 headers shipped with fmpy
+    import fmpy  # the FMI 2.0 headers shipped with fmpy
     return Path(fmpy.__file__).parent / "c-code"
 
 

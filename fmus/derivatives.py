@@ -13,7 +13,8 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-from .status import DONE as _OK, ERROR, OK
+from .status import DONE as _OK
+from .status import ERROR, OK
 
 
 class DerivativeFunctions:

@@ -30,7 +30,8 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-from .status import CO_SIMULATION, DISCARD, DONE as _OK, ERROR, OK
+from .status import CO_SIMULATION, DISCARD, ERROR, OK
+from .status import DONE as _OK
 
 EVENT, CONTINUOUS = "event", "continuous"
 
@@ -82,7 +83,8 @@ class ModelExchangeFunctions:
         """'' if `function` may be called now (in one of the modes `allowed`), else why not."""
         where = f"{self.model_identifier}: {function}"
         if self.interface == CO_SIMULATION:
-            return f"{where}: this instance is a Co-Simulation one (fmi2Instantiate's fmuType); Model Exchange functions are refused"
+            return (f"{where}: this instance is a Co-Simulation one (fmi2Instantiate's fmuType); Model Exchange "
+                    "functions are refused")
         mode = ("terminated" if self.terminated else "initialization" if self.entered
                 else self.me_mode if self.me_mode is not None else "instantiated")
         if mode in allowed:

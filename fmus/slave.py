@@ -27,12 +27,11 @@ from . import BUILD
 from .derivatives import DerivativeFunctions
 from .model_description import model_description
 from .model_exchange import ModelExchangeFunctions
-from .pythonfmu_workarounds import (DefaultExperiment, Fmi2Slave, Fmi2Status, keep_thread_state, raise_to_host,
-                                    register_new_slave)
+from .pythonfmu_workarounds import DefaultExperiment, Fmi2Slave, Fmi2Status, keep_thread_state, raise_to_host, register_new_slave
 from .state import StateFunctions
-from .status import CO_SIMULATION, DISCARD, DONE as _OK, ERROR, MODEL_EXCHANGE, OK, WARNING
+from .status import CO_SIMULATION, DISCARD, ERROR, MODEL_EXCHANGE, OK, WARNING
+from .status import DONE as _OK
 from .variables import Variable
-
 
 
 class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2Slave):
@@ -105,7 +104,9 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
             getter = var.getter
         else:
             self.values[name] = var.start
-            getter = (lambda: self.values[name])
+
+            def getter() -> float:
+                return self.values[name]
         if var.causality == "input":
             self._real_inputs[len(self._getters)] = name
         if not var.integer:
@@ -183,7 +184,8 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
     def fmi2_set_interface(self, fmu_type: int) -> tuple[int, str]:
         """fmi2Instantiate's fmuType (the binary creates every instance as Co-Simulation in pythonfmu)."""
         if fmu_type not in (MODEL_EXCHANGE, CO_SIMULATION):
-            return ERROR, f"{self.model_identifier}: fmi2Instantiate: fmuType {fmu_type} is neither fmi2ModelExchange nor fmi2CoSimulation"
+            return ERROR, (f"{self.model_identifier}: fmi2Instantiate: fmuType {fmu_type} is neither fmi2ModelExchange "
+                           "nor fmi2CoSimulation")
         self.interface = fmu_type
         return _OK
 
@@ -289,7 +291,8 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
             if var is None:
                 return ERROR, f"{where}: valueReference {vr} is not a variable of this FMU"
             if var.causality in ("output", "local"):
-                return ERROR, f"{where}: {var.name} is {'an output' if var.causality == 'output' else 'calculated'}; it cannot be set"
+                what = "an output" if var.causality == "output" else "calculated"
+                return ERROR, f"{where}: {var.name} is {what}; it cannot be set"
             if var.integer != integer:
                 return ERROR, f"{where}: {var.name} is {'an Integer' if var.integer else 'a Real'} variable"
             if var.causality == "parameter" and self.initialized:

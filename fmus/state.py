@@ -12,7 +12,8 @@ import json
 import math
 
 from . import BUILD
-from .status import DONE as _OK, ERROR, OK
+from .status import DONE as _OK
+from .status import ERROR, OK
 
 # serialized FMU state: header, format version (1 byte), sha256 of the payload (32 bytes), JSON payload
 STATE_HEADER = b"emcosim FMU state\n"

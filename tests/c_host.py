@@ -82,7 +82,8 @@ def run_loop_in_c_host(exe: Path, plant_fmu: Path, controller_fmu: Path, workdir
         identifier, folder, vr = _extracted(fmu, workdir)
         args += [str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier, (folder / "resources").as_uri()]
         vrs.append(vr)
-    args += [repr(h), str(n)] + [str(vrs[0][k]) for k in ("u", "q", "p", "x_e")] + [str(vrs[1][k]) for k in ("q", "p", "x_e", "u")]
+    args += ([repr(h), str(n)] + [str(vrs[0][k]) for k in ("u", "q", "p", "x_e")]
+             + [str(vrs[1][k]) for k in ("q", "p", "x_e", "u")])
     return _run(args)
 
 

@@ -13,8 +13,6 @@ runs of MEMS_Proposition1 here. Each controller runs twice, once with dlclose be
 from __future__ import annotations
 
 import math
-import os
-import shutil
 import subprocess
 import sys
 import sysconfig
@@ -26,8 +24,18 @@ from fmpy import read_model_description
 from components import catalog, maglev, mems, references
 from components.plant_step import PlantStepper
 
-from .c_host import (CALLS_SOURCE, LOOP_SOURCE, CONTROLLER_INPUTS, compile_c_host, extract, last_inputs, run_calls,
-                     run_in_c_host, run_loop_in_c_host, toy_fmus)
+from .c_host import (
+    CALLS_SOURCE,
+    CONTROLLER_INPUTS,
+    LOOP_SOURCE,
+    compile_c_host,
+    extract,
+    last_inputs,
+    run_calls,
+    run_in_c_host,
+    run_loop_in_c_host,
+    toy_fmus,
+)
 
 N = 200
 

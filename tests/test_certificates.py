@@ -194,8 +194,8 @@ def test_radius_must_be_finite_and_positive():
 def test_periodic_reference_tube_covers_a_full_period():
     """The MEMS tracking reference has period 2 pi / 30 = 209 ms; its run lasts 50 ms. The tube must cover
     the whole period (so every t >= 0), and its targets reach the reference's extremes q* = 0 and 0.1 m."""
-    from emcosim.paper.certify import design_from_scenario
     from emcosim.engine.ssd import read_scenario
+    from emcosim.paper.certify import design_from_scenario
     d = design_from_scenario(read_scenario("scenarios/mems_tracking_Dd0"))
     assert d.horizon == pytest.approx(0.05)
     nb = certificates.neighbourhood(d.controller, d.reference, d.horizon, 0.1)
@@ -307,8 +307,8 @@ def test_sdp_rate_is_at_least_the_direct_search_on_every_paper_scenario(paper_ce
     """Over the same samples: where the SDP certifies a rate it is >= the search's (to rounding); where
     the SDP says no constant metric exists, its proof (a dual certificate or a sample's eigenvalue) bounds
     every rate, the search's included, by a value <= 0."""
-    from emcosim.paper.certify import design_from_scenario
     from emcosim.engine.ssd import read_scenario
+    from emcosim.paper.certify import design_from_scenario
     assert len(paper_certificates) == 10
     for name, cert in paper_certificates.items():
         d = design_from_scenario(read_scenario(f"scenarios/{name}"))

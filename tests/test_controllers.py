@@ -8,49 +8,10 @@ from components.maglev import D_d_from_paper, Maglev
 from components.mems import MEMS, R_e_bar_from_rbar_e
 from components.proposition1 import Proposition1
 from components.proposition2 import Proposition2
-from components.references import Constant, Sinusoid, SmoothStep
+from components.references import Constant, Sinusoid
 from components.theorem2 import Theorem2
 from components.theorem3 import Theorem3
-from tests.plants_for_tests import TwoAxisLevitator, VectorSinusoid
-
-MAGLEV_REF = Sinusoid(offset=0.0025, amplitude=0.001, omega=5.0)
-TWO_AXIS_REF = VectorSinusoid([0.1, 0.2], [0.05, 0.03], [2.0, 3.0], [0.0, 1.0])
-RBAR = R_e_bar_from_rbar_e(100.0)
-
-
-def cases():
-    mems, mag, two, two_damped = MEMS(), Maglev(), TwoAxisLevitator(), TwoAxisLevitator(damped=True)
-    D1 = np.array([[0.03, -0.01], [0.0, 0.02]])          # satisfies eq. (pHcondition) strictly for two_damped
-    D2 = np.array([[0.03, 0.0], [0.01, 0.0]])            # R_m = diag(0.1, 0): second column must vanish
-    return {
-        "MEMS Prop1": (Proposition1(mems, 3e-5, RBAR, D_d=1e-4), None, 1),
-        "MEMS Thm2 sinusoid": (Theorem2(mems, RBAR, D_d=-0.4), Sinusoid(), 0.2),
-        "MEMS Thm2 smooth step": (Theorem2(mems, RBAR, D_d=-1.0), SmoothStep(q_from=1e-5, q_to=3e-5, duration=1e-3), 1e-3),
-        "maglev Prop2": (Proposition2(mag, 0.0025, 2.82, k_c=20.0), None, 1),
-        "maglev Thm3": (Theorem3(mag, 0.82, k_c=20.0, D_d=D_d_from_paper(-1.0)), MAGLEV_REF, 2.0),
-        "2-axis Prop1": (Proposition1(two_damped, [0.1, 0.2], np.diag([1.5, 2.5]), D_d=D1), None, 1),
-        "2-axis Thm2": (Theorem2(two, np.array([[1.5, 0.2], [0.1, 2.5]]), D_d=[[0.3, -1.0], [2.0, 0.1]]), TWO_AXIS_REF, 3.0),
-        "2-axis Prop2": (Proposition2(two, [0.1, 0.2], np.diag([1.5, 2.5]), k_c=[[3.0, 0.5], [0.5, 2.0]], D_d=D2), None, 1),
-        "2-axis Thm3": (Theorem3(two, np.array([[1.5, 0.2], [0.1, 2.5]]), k_c=[[3.0, 0.5], [0.5, 2.0]], D_d=[[0.3, -1.0], [2.0, 0.1]]), TWO_AXIS_REF, 3.0),
-    }
-
-
-CASES = cases()
-
-
-def random_state_near(eta_star, rng, plant):
-    """A random admissible state: each coordinate of the target perturbed by up to 50% of its block's size
-    (the momentum block of a set-point, where p* = 0, by sqrt(m x 1 N/m) |q*|)."""
-    q, p, x = plant.split(eta_star)
-    p_floor = np.sqrt(1.0 / np.diag(plant.M_inv(q))) * np.max(np.abs(q))
-    scale = np.concatenate([np.abs(q) + 0.1 * np.max(np.abs(q)),
-                            np.abs(p) + 0.1 * np.max(np.abs(p)) + p_floor,
-                            np.abs(x) + 0.1 * np.max(np.abs(x))])
-    for _ in range(100):
-        eta = eta_star + 0.5 * scale * rng.uniform(-1, 1, eta_star.size)
-        if plant.domain_margin(eta) > 0:
-            return eta
-    raise AssertionError("no admissible sample")
+from tests.helpers import CASES, MAGLEV_REF, RBAR, random_state_near
 
 
 @pytest.mark.parametrize("name", list(CASES))
@@ -110,7 +71,8 @@ def _hessian(f, x, scale):
     H = np.empty((n, n))
     for k in range(n):
         h = 1e-5 * scale[k]
-        e = np.zeros(n); e[k] = h
+        e = np.zeros(n)
+        e[k] = h
         H[:, k] = (differentiation.gradient(f, x + e, scale) - differentiation.gradient(f, x - e, scale)) / (2 * h)
     return H
 

@@ -13,60 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fmpy.fmi2 import FMU2Slave
 from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
 
 from emcosim.engine import coupling
 from emcosim.engine.errors import ScenarioError
 from emcosim.engine.master import Simulation, simulate
 from emcosim.engine.plan import make_plan
-from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
-from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
-
-from tests import toy_fmus
-
-DYNAMIC = [Connector("u", "input", "Real"), Connector("x", "output", "Real")]
-STATIC = [Connector("u1", "input", "Real"), Connector("u2", "input", "Real"), Connector("y", "output", "Real")]
-SINE = [Connector("y", "output", "Real")]
-
-
-@pytest.fixture(scope="session")
-def toy_library(tmp_path_factory) -> Path:
-    lib = toy_fmus.compile_library(tmp_path_factory.mktemp("toy_library"))
-    if lib is None:
-        pytest.skip("needs gcc")
-    return lib
-
-
-@pytest.fixture
-def make(tmp_path, toy_library):
-    """make(components, connections, parameters, stop_time, step_size) -> scenario folder;
-    components: [(name, kind, connectors, interpolate, output order)]; connections: [(start, end[, factor])]."""
-    def build(components, connections, parameters=None, stop_time=1.0, step_size=0.01):
-        folder = tmp_path / f"s{len(list(tmp_path.iterdir()))}"
-        folder.mkdir()
-        comps = []
-        for name, kind, connectors, interpolate, order in components:
-            fmu = toy_fmus.build(folder, toy_library, kind, f"Toy{name.title()}{int(interpolate)}{order}", interpolate, order)
-            comp = Component(name, fmu, connectors=connectors)
-            if parameters and name in parameters:
-                (folder / f"{name}.ssv").write_text(parameter_set_xml(
-                    name, [Parameter(k, "Real", float(v)) for k, v in parameters[name].items()]))
-                comp.parameter_sources = [f"{name}.ssv"]
-            comps.append(comp)
-        conns = [Connection(*a.split(".") + b.split("."), *rest) for a, b, *rest in connections]
-        scenario = Scenario("toy", folder / "SystemStructure.ssd", comps, conns, stop_time=stop_time)
-        (folder / "SystemStructure.ssd").write_text(
-            system_structure_xml(scenario, {c.name: str(c.source) for c in comps}, step_size))
-        return read_scenario(folder)
-    return build
-
-
-def loop(make, k=-1.0, order=3, interpolate=True, factor=1.0, stop_time=1.0, step_size=0.01):
-    """plant (ToyDynamic, x' = u) and ctrl (ToyStatic, y = k1 u1) in a loop: x' = k x."""
-    return make([("plant", "dynamic", DYNAMIC, interpolate, order), ("ctrl", "static", STATIC, interpolate, order)],
-                [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u", factor)],
-                {"ctrl": {"k1": k}, "plant": {"x0": 1.0}}, stop_time, step_size)
+from emcosim.engine.ssd import read_scenario
+from tests.helpers import DYNAMIC, SINE, STATIC, loop
 
 
 def taylor(kh: float, K: int) -> float:

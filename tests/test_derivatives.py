@@ -20,33 +20,8 @@ from components.mems import MEMS
 from components.ph_plant import Jet
 from components.plant_step import PlantStepper, mechanical_time, nominal_scale, simulate_polynomial
 from components.references import Constant, Sinusoid, SmoothStep
+from tests.helpers import CASES, random_state_near, richardson_derivative
 from tests.plants_for_tests import TwoAxisLevitator
-from tests.test_controllers import CASES, random_state_near
-
-
-def richardson_derivative(fun, x: np.ndarray, v: np.ndarray, scale: float, decades=(12, -12)):
-    """d/de fun(x + e v) at e = 0 by central differences with one Richardson step, (4 D(h/2) - D(h)) / 3,
-    for h = scale * 10^k, k = decades[0] .. decades[1]: the estimate of the three consecutive steps that
-    agree best (steps whose evaluation fails, e.g. outside the domain, are skipped)."""
-    estimates = []
-    for k in range(decades[0], decades[1] - 1, -1):
-        h = scale * 10.0 ** k
-        try:
-            D1 = (fun(x + h * v) - fun(x - h * v)) / (2 * h)
-            D2 = (fun(x + 0.5 * h * v) - fun(x - 0.5 * h * v)) / h
-            R = np.atleast_1d((4 * D2 - D1) / 3)
-        except (ValueError, ArithmeticError):
-            R = None
-        estimates.append(R if R is not None and np.all(np.isfinite(R)) else None)
-    best = None
-    for a, b, c in zip(estimates, estimates[1:], estimates[2:]):
-        if a is None or b is None or c is None or not (np.any(a) or np.any(b)):
-            continue
-        spread = max(np.max(np.abs(a - b)), np.max(np.abs(c - b))) / max(np.max(np.abs(a)), np.max(np.abs(b)))
-        if best is None or spread < best[0]:
-            best = (spread, b)
-    return np.zeros_like(np.atleast_1d(fun(x))) if best is None else best[1]
-
 
 # ---- plants --------------------------------------------------------------------------------------
 
@@ -227,8 +202,9 @@ def test_du_dt_is_the_derivative_of_u_along_the_closed_loop():
     """du/dt = u_derivative(inputs, d inputs/dt) with the plant's eta' = f(eta, u) and the reference's jet
     derivatives equals the time derivative of u(eta(t), jet(t)) along the monolithic closed loop (MEMS
     tracking, Theorem 2 with D_d = -0.4): Richardson differences of u on Radau's trajectory."""
-    from components.monolithic import ClosedLoop
     from scipy.integrate import solve_ivp
+
+    from components.monolithic import ClosedLoop
 
     ctrl = catalog.controller("MEMS_Theorem2", {"D_d": -0.4})
     plant, ref = ctrl.plant, Sinusoid()

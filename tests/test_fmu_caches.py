@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from components import catalog, references
-from tests.test_fmus import Slave
+from tests.helpers import Slave
 
 # maglev tracking inputs near the paper's operating point: q, p, x_e and the reference jet
 X1 = {"q": 0.0022, "p": 4.1e-05, "x_e": 1.03, "q_star": 0.00222, "q_star_dot": 4.2e-4, "q_star_ddot": 2.8e-4,

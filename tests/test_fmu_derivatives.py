@@ -11,8 +11,7 @@ from fmpy import read_model_description
 from components import catalog
 from components.plant_step import PlantStepper, simulate_polynomial
 from tests.c_host import CALLS_SOURCE, compile_c_host, extract, run_calls
-from tests.test_derivatives import richardson_derivative
-from tests.test_fmus import Slave
+from tests.helpers import Slave, richardson_derivative
 
 PLANTS = ("MEMS", "Maglev")
 CONTROLLERS = ("MEMS_Proposition1", "MEMS_Theorem2", "Maglev_Proposition2", "Maglev_Theorem3")

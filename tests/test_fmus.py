@@ -14,8 +14,13 @@ import numpy as np
 import pytest
 from fmpy import calloc, free, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
 from fmpy.validation import validate_fmu
 
 from components import catalog, maglev, mems, references
@@ -28,6 +33,7 @@ from components.proposition2 import Proposition2
 from components.theorem2 import Theorem2
 from components.theorem3 import Theorem3
 from fmus.variables import RATE_UNITS
+from tests.helpers import Slave
 
 PLANTS = {"MEMS": mems, "Maglev": maglev}
 CONTROLLERS = {"MEMS_Proposition1": mems, "MEMS_Theorem2": mems, "Maglev_Proposition2": maglev,
@@ -36,58 +42,6 @@ TRACKING = {"MEMS_Theorem2", "Maglev_Theorem3"}
 ALL = list(PLANTS) + list(CONTROLLERS) + ["Reference"]
 OK, DISCARD, ERROR = 0, 2, 3
 JET = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
-
-
-class Slave:
-    """An FMU2Slave addressed by variable names, with the FMU's log messages captured."""
-
-    def __init__(self, path, name="instance"):
-        self.md = read_model_description(str(path))
-        from fmpy import extract
-        self.unzipdir = extract(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.integer = {v.name for v in self.md.modelVariables if v.type == "Integer"}
-        self.messages: list[tuple[int, str]] = []
-        self.callbacks = fmi2CallbackFunctions()
-        self.callbacks.logger = fmi2CallbackLoggerTYPE(
-            lambda env, inst, status, cat, msg: self.messages.append((status, msg.decode())))
-        self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self.callbacks, loggingOn=True)
-
-    def init(self, start_time=0.0, **values) -> int:
-        self.fmu.setupExperiment(startTime=start_time)
-        self.fmu.enterInitializationMode()
-        self.set(**values)
-        return self.call(self.fmu.fmi2ExitInitializationMode, self.fmu.component)
-
-    def set(self, **values) -> None:
-        for name, value in values.items():
-            if name in self.integer:
-                self.fmu.setInteger([self.vr[name]], [int(value)])
-            else:
-                self.fmu.setReal([self.vr[name]], [float(value)])
-
-    def get(self, *names) -> list[float]:
-        return self.fmu.getReal([self.vr[n] for n in names])
-
-    def step(self, t, h) -> int:
-        return self.call(self.fmu.fmi2DoStep, self.fmu.component, t, h, 1)
-
-    @staticmethod
-    def call(function, *args) -> int:
-        try:
-            return function(*args)
-        except FMICallException as exc:
-            return exc.status
-
-    def errors(self) -> str:
-        return "\n".join(m for s, m in self.messages if s >= 3)
-
-    def free(self) -> None:
-        self.fmu.fmi2FreeInstance(self.fmu.component)
 
 
 # ---- compliance and interfaces -------------------------------------------------------------------
@@ -558,7 +512,8 @@ FOREIGN = Path(__file__).parent / "fixtures" / "foreign"
 RUN_IN_ORDER = r"""
 import json, sys
 from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE,
+                       fmi2CallbackFreeMemoryTYPE)
 from fmpy import calloc, free
 keep = []
 for path in sys.argv[1:]:
@@ -668,7 +623,6 @@ def test_unknown_fmu_type_is_refused_with_a_message(fmus):
 def toys(tmp_path_factory) -> dict[str, Path]:
     from .c_host import toy_fmus
     return toy_fmus(tmp_path_factory.mktemp("toys"))
-
 
 
 @pytest.mark.parametrize("identifier", ["DerivativeIntegrator", "DerivativeGain"])

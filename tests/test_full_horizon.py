@@ -52,7 +52,7 @@ def run_scenario(name: str, fmu_dir: str) -> dict:
 
 @pytest.fixture(scope="module")
 def full_runs(fmu_dir) -> dict:
-    from .test_scenarios import declares_derivatives, scenario
+    from .helpers import declares_derivatives, scenario
     if not declares_derivatives(scenario(SCENARIOS[0], fmu_dir)):
         pytest.skip("the FMUs declare no output derivatives / input interpolation (issue 13): the default "
                     "steps are those of first-order coupling")

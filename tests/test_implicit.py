@@ -14,8 +14,7 @@ from emcosim.engine.errors import ScenarioError, SimulationError
 from emcosim.engine.master import Simulation, simulate
 from emcosim.engine.ssd import read_scenario
 from emcosim.engine.ssd_writer import system_structure_xml
-from tests.test_coupling import DYNAMIC, STATIC, loop, make, toy_library  # noqa: F401 - fixtures
-from tests.test_scenarios import ROOT, TIGHT, references  # noqa: F401 - fixture
+from tests.helpers import DYNAMIC, ROOT, STATIC, TIGHT, loop
 
 
 def radau(z: float) -> float:

@@ -67,8 +67,8 @@ def test_the_issues_nan_run_ends_with_the_controllers_error(fmu_dir, tmp_path, c
     """The issue's run: the controller cannot compute u at t = 3 ms. It used to return NaN with fmi2OK;
     now the FMU answers fmi2Error with the reason, and the run ends with the rows before it kept."""
     out = tmp_path / "x.csv"
-    line = error_line(["run", "maglev_tracking_D0_R2.82", "--set", "reference.omega=200", "--stop-time", "0.003", "--step-size", "0.0005",
-                       "--fmu-dir", str(fmu_dir), "-o", str(out)], capsys)
+    line = error_line(["run", "maglev_tracking_D0_R2.82", "--set", "reference.omega=200", "--stop-time", "0.003",
+                       "--step-size", "0.0005", "--fmu-dir", str(fmu_dir), "-o", str(out)], capsys)
     assert "component 'controller' failed in fmi2GetReal at t = 0.003 s" in line, line
     assert "Maglev_Theorem3.fmu" in line and "infeasible reference" in line, line
     assert not out.exists()
@@ -274,8 +274,9 @@ def loop_with_connector_units(loop: Path, suppress: bool = False) -> Path:
     """plant.x declared [m] and ctrl.x [mm] on the .ssd's connectors (the toy FMUs declare no units)."""
     ssd = loop / "SystemStructure.ssd"
     text = ssd.read_text()
-    text = text.replace('<ssd:Connector name="x" kind="output"><ssc:Real/>', '<ssd:Connector name="x" kind="output"><ssc:Real unit="m"/>')
-    text = text.replace('<ssd:Connector name="x" kind="input"><ssc:Real/>', '<ssd:Connector name="x" kind="input"><ssc:Real unit="mm"/>')
+    output, input_ = '<ssd:Connector name="x" kind="output">', '<ssd:Connector name="x" kind="input">'
+    text = text.replace(f'{output}<ssc:Real/>', f'{output}<ssc:Real unit="m"/>')
+    text = text.replace(f'{input_}<ssc:Real/>', f'{input_}<ssc:Real unit="mm"/>')
     text = text.replace("  <ssd:DefaultExperiment", '  <ssd:Units><ssc:Unit name="m"><ssc:BaseUnit m="1"/></ssc:Unit>'
                         '<ssc:Unit name="mm"><ssc:BaseUnit m="1" factor="0.001"/></ssc:Unit></ssd:Units>\n'
                         "  <ssd:DefaultExperiment")

@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emcosim.engine import dependencies
 from emcosim.cli import main
+from emcosim.engine import dependencies
 from emcosim.engine.errors import ScenarioError, SimulationError
 from emcosim.engine.master import simulate
-from emcosim.progress import ProgressBar
 from emcosim.engine.results import read_csv
 from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
 from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
 from emcosim.engine.ssp import pack_ssp
+from emcosim.progress import ProgressBar
 
 FIXTURES = Path(__file__).parent / "fixtures"
 GAIN = [Connector("x", "input", "Real"), Connector("y", "output", "Real")]

@@ -6,14 +6,27 @@ import math
 import numpy as np
 import pytest
 
+import components.plant_step as plant_step
+from components import catalog
 from components.maglev import Maglev
 from components.mems import MEMS
 from components.ph_plant import DomainError
-import components.plant_step as plant_step
-from components import catalog
-from components.plant_step import (_A, _C, _GAMMA, _STAGE_GAMMA, _STAGE_TIME, LAYER_MIN_DECAY, PlantStepper,
-                                   _ArrayModel, _ScalarModel, _rodas4_structured, _solve_structured, nominal_scale,
-                                   simulate_polynomial, simulate_zoh)
+from components.plant_step import (
+    _A,
+    _C,
+    _GAMMA,
+    _STAGE_GAMMA,
+    _STAGE_TIME,
+    LAYER_MIN_DECAY,
+    PlantStepper,
+    _ArrayModel,
+    _rodas4_structured,
+    _ScalarModel,
+    _solve_structured,
+    nominal_scale,
+    simulate_polynomial,
+    simulate_zoh,
+)
 
 PLANTS = {"MEMS": MEMS, "Maglev": Maglev}
 

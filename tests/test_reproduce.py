@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from emcosim.engine.ssd import read_scenario
 from emcosim.paper import report
 from emcosim.paper.reference_check import monolithic, samples_for
 from emcosim.paper.reproduce import PAPER_CASES, run_paper_scenarios
-from emcosim.engine.ssd import read_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURES = ["fig1_mems_regulation", "fig2_mems_tracking", "fig3_maglev_tracking", "fig4_maglev_error_norms"]

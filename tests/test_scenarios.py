@@ -6,7 +6,6 @@ the paper-scale horizons, which benchmarks/bench_master.py runs in full (accurac
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emcosim.paper import scenarios as paper_scenarios
 from emcosim.engine.master import simulate
 from emcosim.engine.ssd import read_scenario
+from emcosim.paper import scenarios as paper_scenarios
+from tests.helpers import TIGHT, declares_derivatives, scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [c.name for c in paper_scenarios.cases()]
@@ -63,24 +63,6 @@ def short(name: str) -> float:
     return 5e-4 if name.startswith("mems") else 2.0
 
 
-def scenario(name: str, fmu_dir: Path):
-    return read_scenario(ROOT / "scenarios" / name, fmu_dir=fmu_dir)
-
-
-@pytest.fixture(scope="session")
-def references():
-    """Monolithic references, computed once per (scenario, horizon, grid)."""
-    from emcosim.paper.reference_check import monolithic
-    cache = {}
-
-    def get(s, t_end, n_samples):
-        key = (s.name, t_end, n_samples)
-        if key not in cache:
-            cache[key] = monolithic(s, stop_time=t_end, n_samples=n_samples)
-        return cache[key]
-    return get
-
-
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_scenario_matches_monolithic_reference(name, fmu_dir, references):
     """Every scenario at its default step: the co-simulation follows the monolithic closed loop of
@@ -103,17 +85,6 @@ def test_scenario_matches_monolithic_reference(name, fmu_dir, references):
 # derivatives were passed), first-order coupling (the defaults and two coarser)
 CONVERGENCE = {"mems_regulation_Dd-1": (4e-4, (2e-6, 1e-6, 5e-7), (4e-6, 2e-6, 1e-6)),
                "maglev_tracking_D-1_R2.82": (2.0, (2e-3, 1e-3, 5e-4), (0.04, 0.02, 0.01))}
-
-
-def declares_derivatives(s) -> bool:
-    from fmpy import read_model_description
-    mds = [read_model_description(str(c.source)) for c in s.components]
-    return all(md.coSimulation.canInterpolateInputs for md in mds if any(
-        v.causality == "input" for v in md.modelVariables)) and all(
-        md.coSimulation.maxOutputDerivativeOrder >= 1 for md in mds)
-
-
-TIGHT = {"plant.rtol": 1e-9}     # the plant's integration error far below the coupling's at the smallest steps
 
 
 @pytest.mark.parametrize("coupling_order", [0, 1, None])
@@ -171,6 +142,7 @@ def test_container_fmu_of_a_scenario(fmu_dir, tmp_path):
     runs; its trajectory agrees with our master's with a zero-order hold (the container passes no
     derivatives; see docs/scenarios.md on its stepping)."""
     from fmpy import simulate_fmu
+
     from emcosim.cli import main
     name = "maglev_tracking_D-1_R2.82"
     fmu = tmp_path / "loop.fmu"

@@ -10,8 +10,7 @@ import pytest
 
 from emcosim.engine.errors import ScenarioError
 from emcosim.engine.master import Simulation, simulate
-
-from .test_coupling import DYNAMIC, STATIC, loop, make, toy_library  # noqa: F401 - fixtures
+from tests.helpers import DYNAMIC, STATIC, loop
 
 
 def error(r, k: float = -1.0) -> float:

@@ -19,8 +19,8 @@ import pytest
 from emcosim import cli
 from emcosim.engine.results import Result, read_csv
 from emcosim.engine.ssd import read_scenario
-from emcosim.paper.sweep import METRICS, metrics_of, parse_grid, parse_sample, points
-from emcosim.paper.sweep_output import read_table
+from emcosim.paper.sweep import metrics_of, parse_grid, parse_sample, points
+from emcosim.paper.sweep_output import METRICS, read_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = "mems_regulation_Dd0"

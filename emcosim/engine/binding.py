@@ -6,6 +6,7 @@ for), each checked against the variable it sets.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from . import fmi, units
 from .errors import OptionError, ScenarioError
@@ -69,7 +70,7 @@ def check_connections(scenario: Scenario, instances: dict[str, Instance]) -> lis
     """Each connection must run from an output to an input of the same type; an input has one source.
     Returns the connections to run, with the unit conversion between the two ends (SSP: converted
     to the end's unit, then the connection's LinearTransformation) folded into factor and offset."""
-    fed = {}
+    fed: dict[str, str] = {}
     out = []
     for c in scenario.connections:
         for element in (c.start_element, c.end_element):
@@ -139,7 +140,7 @@ def _with_unit_conversion(scenario: Scenario, instances: dict[str, Instance], c)
 
 
 def parameter_values(scenario: Scenario, instances: dict[str, Instance],
-                     overrides: dict[str, str | float]) -> dict[str, list[tuple[object, object]]]:
+                     overrides: dict[str, str | float]) -> dict[str, list[tuple[Any, Any]]]:
     """(variable, value) pairs to set per component: .ssv values (converted to the FMU variable's
     unit), then overrides, all checked: the variable can be set and is not a connected input, the
     value has its type, an Integer fits in 32 bits, and values are within a declared min/max."""
@@ -159,7 +160,7 @@ def parameter_values(scenario: Scenario, instances: dict[str, Instance],
                                     f"but {inst.path.name} declares {var.type}")
             value = float(p.value) if var.type == "Real" else p.value
             if p.unit and var.type == "Real":
-                value = _convert_unit(value, p, var, inst, what)
+                value = _convert_unit(float(value), p, var, inst, what)
             values[comp.name][p.name] = (var, _check_range(value, var, what, inst))
     for full, raw in overrides.items():
         comp_name, _, var_name = full.partition(".")

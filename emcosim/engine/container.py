@@ -20,6 +20,7 @@ import shutil
 import tempfile
 import uuid
 from pathlib import Path
+from typing import Any
 
 from fmpy import read_model_description
 from fmpy.container_fmu import Configuration
@@ -27,8 +28,8 @@ from fmpy.container_fmu.cli import create_container_fmu
 from fmpy.container_fmu.config import Component, Connection
 from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
 
-from .errors import OptionError, ScenarioError
 from .binding import check_connections, load, parameter_values
+from .errors import OptionError, ScenarioError
 from .ssd import Scenario
 
 
@@ -52,7 +53,7 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
         raise ScenarioError(f"{scenario.path}: the container FMU needs a distinct FMU file per component")
 
     variables = [ModelVariable(type="Real", variability="continuous", causality="independent", name="time")]
-    mappings = {}
+    mappings: dict[str, Any] = {}
     for name, inst in instances.items():
         for var, value in parameters[name]:
             v = ModelVariable(type=var.type, variability=var.variability or "fixed", causality="parameter",
@@ -118,7 +119,7 @@ def _unit_definitions(instances, variables) -> list:
     """The components' definitions of the units the container's variables use (first definition of
     each name); a unit two components define differently is an error."""
     used = {v.unit for v in variables if v.unit}
-    found = {}
+    found: dict[str, Any] = {}
     for inst in instances.values():
         for unit in inst.model_description.unitDefinitions:
             if unit.name not in used:

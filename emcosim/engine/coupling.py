@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from . import dependencies
 from .fmi import FMICallException
 from .history import History, taylor
-from .options import MAX_COUPLING_ORDER as MAX_ORDER   # the highest order the master passes when none is asked for
+from .options import MAX_COUPLING_ORDER as MAX_ORDER  # the highest order the master passes when none is asked for
 from .transfer import Transfer
 
 

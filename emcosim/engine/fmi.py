@@ -13,8 +13,16 @@ from typing import Callable
 
 from fmpy import calloc, free, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Model, FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2EventInfo, fmi2FMUstate)
+from fmpy.fmi2 import (
+    FMU2Model,
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    fmi2EventInfo,
+    fmi2FMUstate,
+)
 
 __all__ = ["FMICallException", "STATUS", "fmi2EventInfo", "fmi2FMUstate", "instantiate", "raw", "read_model_description"]
 

@@ -22,7 +22,7 @@ class States:
                        inst.raw("fmi2FreeFMUstate")) for inst in instances]
 
     def save(self, t: float) -> list:
-        states = []
+        states: list = []
         for inst, component, get, _, _ in self.calls:
             state = fmi2FMUstate()
             if get(component, ctypes.byref(state)) > 1:

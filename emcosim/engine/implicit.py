@@ -132,7 +132,7 @@ class Implicit:
     for the Hermite polynomial (None: chords); tolerance: the iteration tolerance."""
 
     def __init__(self, stepper, connections, value_slot: dict[str, int],
-                 derivative_slot: dict[str, int] | None = None, tolerance: float = ITERATION_TOL,
+                 derivative_slot: dict[str, tuple[int, float]] | None = None, tolerance: float = ITERATION_TOL,
                  halvings: int = MAX_HALVINGS):
         self.stepper = stepper
         self.tolerance = tolerance
@@ -144,7 +144,8 @@ class Implicit:
         interpolate = all(capabilities(stepper.instances[comp].model_description).interpolates_inputs
                           for comp in by_target)
         self.mode = "hold" if not interpolate else "hermite" if derivative_slot else "chord"
-        self.derivative_slots = [derivative_slot[c.end] for c in connections] if self.mode == "hermite" else []
+        self.derivative_slots: list[tuple[int, float]] = (
+            [derivative_slot[c.end] for c in connections] if derivative_slot and self.mode == "hermite" else [])
         self.sets = []          # per FMU: (setter of the polynomial, input indices)
         for comp, items in by_target.items():
             inst, idx = stepper.instances[comp], [i for i, _ in items]
@@ -350,7 +351,9 @@ class Implicit:
     def source_derivatives(self) -> list[float]:
         """The sources' first derivatives (times the connections' factors) at the last resolve, for the
         Hermite polynomial (empty for chords and holds)."""
-        dv = self.stepper.derivatives.values if self.derivative_slots else None
+        if not self.derivative_slots:
+            return []
+        dv = self.stepper.derivatives.values
         return [dv[s] * f for s, f in self.derivative_slots]
 
     def _call(self, transfer: Transfer, t: float) -> None:

@@ -3,10 +3,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from . import fmi, tempdirs
-from .errors import ScenarioError
 from .archive import extract_archive
+from .errors import ScenarioError
 from .ssd import Scenario
 
 
@@ -17,11 +18,11 @@ class Instance:
 
     name: str
     path: Path
-    model_description: object
-    variables: dict                                  # name -> fmpy ModelVariable
-    fmu: object | None = None
+    model_description: Any                           # fmpy's ModelDescription
+    variables: dict[str, Any]                        # name -> fmpy ModelVariable
+    fmu: Any = None                                  # fmpy's FMU2Slave or FMU2Model, once instantiated
     messages: list[str] = field(default_factory=list)
-    callbacks: object = None
+    callbacks: Any = None
     model_exchange: bool = False                     # instantiated for Model Exchange
 
     def variable(self, name: str, scenario: Scenario):
@@ -45,7 +46,7 @@ def instantiate(inst: Instance, workdirs: list, model_exchange: bool = False) ->
     """Unpack the FMU into a temporary folder of this process (listed in `workdirs`) and instantiate it."""
     unzipdir = str(tempdirs.make(inst.name))          # emcosim-PID-...: removed at the next start if killed
     workdirs.append(unzipdir)
-    extract_archive(inst.path, unzipdir)             # within the archive limits (a zip bomb is refused)
+    extract_archive(inst.path, Path(unzipdir))       # within the archive limits (a zip bomb is refused)
 
     def log(status: int, text: str) -> None:
         inst.messages.append(f"[{fmi.STATUS[status] if 0 <= status < 6 else status}] {text}")

@@ -32,16 +32,17 @@ import shutil
 import time
 from typing import Callable, Sequence
 
-from . import binding, coupling, instances as instances_
+from . import binding, coupling
 from . import implicit as implicit_
+from . import instances as instances_
 from .errors import ScenarioError, SimulationError
 from .fmi import FMICallException
 from .fmustate import States
 from .instances import Instance, last_message
 from .model_exchange import simulate_model_exchange
 from .options import MAX_STEPS, Experiment, RunOptions, experiment
-from .plan import Plan, make_plan, n_slots
 from .outputs import ResultFile
+from .plan import Plan, make_plan, n_slots
 from .results import Result
 from .ssd import Scenario
 from .stepcontrol import StepControl, check_rollback
@@ -213,7 +214,7 @@ class Simulation:
         if options.tolerance is None:
             stepper, result, _ = self._start(record, parameters, planned, requested, implicit, None, sink)
             _run_fixed(stepper, result, planned, progress)
-            mains, shadows = [stepper], []
+            mains, shadows = [stepper], list[Stepper]()
         else:
             mains, shadows, result = self._run_error_controlled(options, planned, record, parameters, requested,
                                                                 implicit, progress, sink)
@@ -383,13 +384,13 @@ class Simulation:
             except Exception:                 # noqa: BLE001 - any failure: a fresh shadow copy
                 self._free_shadow()
         if self._shadow is None:
-            own = {name: inst for name, inst in binding.load(self.scenario).items() if name in fed}
+            fresh = {name: inst for name, inst in binding.load(self.scenario).items() if name in fed}
 
             def instantiate_all() -> None:
-                for inst in own.values():
+                for inst in fresh.values():
                     instances_.instantiate(inst, self._workdirs)
-            self._shadow = {name: own.get(name, inst) for name, inst in self.instances.items()}
-            self._shadow_own = list(own)
+            self._shadow = {name: fresh.get(name, inst) for name, inst in self.instances.items()}
+            self._shadow_own = list(fresh)
             self._call(instantiate_all)
         self._shadow_used = True
         shadow = self._shadow

@@ -32,13 +32,14 @@ import math
 import shutil
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.integrate import BDF, LSODA, Radau
 from scipy.optimize import brentq
 
-from . import binding, instances as instances_
+from . import binding
+from . import instances as instances_
 from .errors import ScenarioError, SimulationError
 from .fmi import STATUS, FMICallException, fmi2EventInfo
 from .instances import Instance, last_message
@@ -91,9 +92,9 @@ class _Unit:
     n: int                                          # continuous states
     nz: int                                         # event indicators
     calls: dict = field(default_factory=dict)       # FMI function -> raw ctypes function
-    x: object = None                                # ctypes arrays of its states, derivatives, indicators
-    dx: object = None
-    z: object = None
+    x: Any = None                                   # ctypes arrays of its states, derivatives, indicators
+    dx: Any = None
+    z: Any = None
 
 
 class System:
@@ -193,7 +194,7 @@ class System:
 
     def indicators(self, t: float, xi: np.ndarray) -> np.ndarray:
         self.set_point(t, xi)
-        out = []
+        out: list[float] = []
         for unit in self.with_indicators:
             self._call(unit, "fmi2GetEventIndicators", unit.z, unit.nz)
             out.extend(unit.z)
@@ -323,11 +324,11 @@ class _JacobianPlan:
             return r
 
         names = {o: name for name, (_, outputs, _, _, _, _) in local.items() for o in outputs}
-        for out in sorted(names, key=lambda o: self.level.get(o, 0)):
-            unit, outputs, nd, L, ns, inputs = local[names[out]]
-            r = row(unit, L[nd + outputs.index(out)], ns, inputs)
-            d_output[out] = r
-            for end, factor in self.feeds.get(out, ()):
+        for output in sorted(names, key=lambda o: self.level.get(o, 0)):
+            unit, outputs, nd, L, ns, inputs = local[names[output]]
+            r = row(unit, L[nd + outputs.index(output)], ns, inputs)
+            d_output[output] = r
+            for end, factor in self.feeds.get(output, ()):
                 d_input[end] = factor * r
         J = np.zeros((n, n))
         for unit, outputs, nd, L, ns, inputs in local.values():

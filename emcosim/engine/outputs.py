@@ -26,8 +26,7 @@ import signal
 import time
 from pathlib import Path
 
-from . import stopping
-from .errors import Interrupted, ScenarioError, SimulationError
+from .errors import ScenarioError, SimulationError
 
 FLUSH_SECONDS = 1.0            # rows reach the operating system at least this often ...
 FLUSH_BYTES = 1 << 18          # ... and whenever this much text is buffered (bounds the buffer's memory)
@@ -493,5 +492,4 @@ def _last_time(fd: int, end: int | None = None) -> float | None:
         return None                                       # only the header is left
 
 
-__all__ = ["Result", "ResultFile", "OutputFolder", "Interrupted", "read_csv", "write_csv", "partial_note",
-           "check_destination", "mark_orphans", "reason_of"]
+__all__ = ["OutputFolder", "PARTIAL_MARK", "ResultFile", "check_destination", "mark_orphans", "reason_of", "write_csv"]

@@ -18,7 +18,8 @@ from .transfer import Transfer
 class Plan:
     """What the master does at a communication point, precomputed."""
 
-    stages: list                     # [(gets, sets)] per level: gets [(Transfer, full names)], sets [(Transfer, [(source slot, factor, offset)])]
+    stages: list                     # [(gets, sets)] per level: gets [(Transfer, full names)],
+                                     # sets [(Transfer, [(source slot, factor, offset)])]
     record: list                     # extra gets for recorded variables that are not connected outputs
     columns: list[str]               # recorded full names
     column_slots: list[int]          # slot of each column in the value buffer
@@ -47,10 +48,10 @@ def make_plan(scenario: Scenario, instances: dict, connections, record) -> Plan:
     for k in range(max(level.values(), default=-1) + 1):
         outs = [o for o in level if level[o] == k]
         gets = _batches(instances, outs, slot_of, getter=True)
-        ins = [(c, c.end) for c in connections if level[c.start] == k]
+        fed = [c for c in connections if level[c.start] == k]
         sets = []
-        for transfer, names in _batches(instances, [e for _, e in ins], slot_of, getter=False):
-            conn_of = {c.end: c for c, _ in ins}
+        for transfer, names in _batches(instances, [c.end for c in fed], slot_of, getter=False):
+            conn_of = {c.end: c for c in fed}
             sources = [(slot_of(conn_of[n].start), conn_of[n].factor, conn_of[n].offset) for n in names]
             sets.append((transfer, sources))
         stages.append((gets, sets))

@@ -11,7 +11,7 @@ a different line style per series so that figures also read in grey print.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +31,11 @@ class Result:
         self.sink = sink
         self.last: list[float] | None = None   # the last row recorded
         self.n_rows = 0
+        # what a run reports beside its rows (master.py, model_exchange.py): None where it does not apply
+        self.coupling_orders: dict[str, int] = {}
+        self.step_control: Any = None          # stepcontrol.StepReport of an error-controlled run
+        self.implicit: Any = None              # implicit.Statistics of an implicitly coupled run
+        self.model_exchange: Any = None        # model_exchange.Statistics of a Model Exchange run
         if sink is not None:
             sink.start(self.columns)
 
@@ -97,3 +103,6 @@ def partial_note(path: str | Path) -> str | None:
     with open(path, newline="") as f:
         first = f.readline()
     return first[2:].strip() if first.startswith(PARTIAL_MARK) else None
+
+
+__all__ = ["Result", "partial_note", "read_csv"]

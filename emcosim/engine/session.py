@@ -23,12 +23,13 @@ from .ssd import Scenario
 T = TypeVar("T")
 
 
-class Session(master.Simulation):
+class Session:
     """One scenario's FMUs, instantiated once in this process (on its main thread) and reset between
-    runs. Not thread-safe: use one session per thread (the sweep keeps one per worker thread)."""
+    runs (a master.Simulation). Not thread-safe: use one session per thread (the sweep keeps one per
+    worker thread)."""
 
     def __init__(self, scenario: Scenario):
-        super().__init__(scenario, call=on_main_thread)
+        self.simulation = master.Simulation(scenario, call=on_main_thread)
 
     def run(self, start_values: dict[str, str | float] | None = None, stop_time: float | None = None,
             step_size: float | None = None, record: Sequence[str] | None = None,
@@ -36,8 +37,18 @@ class Session(master.Simulation):
             coupling: str | None = None) -> Result:
         """Run the scenario once, like `master.simulate` with the same arguments (fixed communication
         step unless a tolerance is given); raises the same ScenarioError / SimulationError."""
-        return super().run(stop_time=stop_time, step_size=step_size, start_values=start_values, record=record,
-                           tolerance=tolerance, coupling_order=coupling_order, coupling=coupling)
+        return self.simulation.run(stop_time=stop_time, step_size=step_size, start_values=start_values,
+                                   record=record, tolerance=tolerance, coupling_order=coupling_order,
+                                   coupling=coupling)
+
+    def close(self) -> None:
+        self.simulation.close()
+
+    def __enter__(self) -> "Session":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def on_main_thread(fn: Callable[[], T]) -> T:

@@ -25,10 +25,8 @@ import atexit
 import codecs
 import copy
 import math
-import os
 import re
 import shutil
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET

@@ -4,8 +4,9 @@ parameter sets)."""
 from __future__ import annotations
 
 import re
+from typing import Sequence
 
-from .ssd import EMCOSIM_ANNOTATION, NS, OMS_ANNOTATION, OSP_ANNOTATION, PARAMETER_SET, Parameter, Scenario
+from .ssd import EMCOSIM_ANNOTATION, NS, OMS_ANNOTATION, OSP_ANNOTATION, Parameter, Scenario
 
 
 def format_value(value: float | int | bool | str) -> str:
@@ -16,7 +17,7 @@ def format_value(value: float | int | bool | str) -> str:
     return str(value)
 
 
-def parameter_set_xml(name: str, parameters: list[Parameter], notes: list[str] = ()) -> str:
+def parameter_set_xml(name: str, parameters: list[Parameter], notes: Sequence[str] = ()) -> str:
     """The text of an .ssv file; each parameter's description becomes an XML comment before it.
     Units go into the comments, not into `unit` attributes (SSP wants those declared in ssc:Units)."""
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
@@ -67,12 +68,12 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
         lines.append("      </ssd:Component>")
     lines.append("    </ssd:Elements>")
     lines.append("    <ssd:Connections>")
-    for k in scenario.connections:
-        attrs = (f'startElement="{_esc(k.start_element)}" startConnector="{_esc(k.start_connector)}" '
-                 f'endElement="{_esc(k.end_element)}" endConnector="{_esc(k.end_connector)}"')
-        if k.factor != 1.0 or k.offset != 0.0:
+    for link in scenario.connections:
+        attrs = (f'startElement="{_esc(link.start_element)}" startConnector="{_esc(link.start_connector)}" '
+                 f'endElement="{_esc(link.end_element)}" endConnector="{_esc(link.end_connector)}"')
+        if link.factor != 1.0 or link.offset != 0.0:
             lines.append(f"      <ssd:Connection {attrs}>")
-            lines.append(f'        <ssc:LinearTransformation factor="{k.factor!r}" offset="{k.offset!r}"/>')
+            lines.append(f'        <ssc:LinearTransformation factor="{link.factor!r}" offset="{link.offset!r}"/>')
             lines.append("      </ssd:Connection>")
         else:
             lines.append(f"      <ssd:Connection {attrs}/>")

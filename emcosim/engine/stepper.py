@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable
+from typing import Any, Callable
 
 from . import coupling
 from .errors import SimulationError
@@ -36,7 +36,7 @@ class Stepper:
         self.derivatives = derivatives
         self.order = [inst for name, inst in instances.items() if stepped is None or name in stepped]
         self.do_step = [(inst, inst.raw("fmi2DoStep"), inst.component) for inst in self.order]
-        self.implicit = None                               # implicit coupling (implicit.Implicit), set by the run
+        self.implicit: Any = None                          # implicit coupling (implicit.Implicit), set by the run
         self.reset_counters()
         self.step_time = 0.0
         self.step_times = {inst.name: 0.0 for inst in self.order}

@@ -24,7 +24,7 @@ def make(label: str) -> Path:
 
 def clean_stale() -> list[Path]:
     """Remove the temporary folders of emcosim processes that no longer run; returns them."""
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(Path(tempfile.gettempdir()).iterdir())
     except OSError:

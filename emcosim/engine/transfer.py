@@ -11,12 +11,12 @@ from __future__ import annotations
 import ctypes
 import math
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 from .fmi import FMICallException
 from .instances import last_message
 
-C_TYPES = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
+C_TYPES: dict[str, Any] = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
 
 
 class Transfer:

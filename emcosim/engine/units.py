@@ -64,7 +64,7 @@ def unit_of_variable(var) -> str | None:
 def parse_units(element: ET.Element | None, ns: dict[str, str], where: str) -> dict[str, Unit]:
     """The ssc:Unit definitions inside an ssd:Units or ssv:Units element, by name; raises ValueError
     (with `where` and the unit) for a malformed definition."""
-    units = {}
+    units: dict[str, Unit] = {}
     if element is None:
         return units
     for u in element.findall("ssc:Unit", ns):

@@ -9,8 +9,9 @@ the closed loop as one ODE (components.monolithic, Radau at rtol 1e-10) and meas
 over the monolithic sample times t_k in [t0, t_stop] that are communication points of the
 co-simulation, normalised by the largest target position q*(t) (the reference, or the set-point)
 over the scenario's whole horizon, so that a run over a shorter horizon is judged on the same
-scale (`position_scale`). The samples t_k are communication points (no interpolation: interpolating between communication points would add an O(h^2)
-error of its own). `samples_for` gives a monolithic grid that is a subset of the communication grid.
+scale (`position_scale`). The samples t_k are communication points (no interpolation: interpolating between
+communication points would add an O(h^2) error of its own). `samples_for` gives a monolithic grid that is a
+subset of the communication grid.
 
 Runs with error-controlled steps have communication points anywhere: `Truth` evaluates the
 monolithic solution at any time by cubic Hermite interpolation of its dense samples with the exact

@@ -17,15 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report
-from .certify import design_from_scenario
 from ..engine import stopping
 from ..engine.errors import Interrupted, ScenarioError, SimulationError
 from ..engine.master import simulate
-from ..progress import ProgressBar
 from ..engine.outputs import OutputFolder, write_csv
 from ..engine.results import Result
 from ..engine.ssd import read_scenario
+from ..progress import ProgressBar
+from . import report
+from .certify import design_from_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "scenarios"
@@ -267,6 +267,7 @@ def design_facts_of(names: dict[str, str] = PAPER_CASES) -> dict:
     linearized mode, Theorem 1 (iii) at the paper's gains and on a grid of gains, and the damping
     of the linearized maglev loop over R_e_bar. About 10 s; no simulation."""
     from components import maglev
+
     from . import design_facts as facts
 
     scen = {role: read_scenario(SCENARIOS / name) for role, name in names.items()}

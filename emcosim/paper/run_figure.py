@@ -19,9 +19,9 @@ from . import report
 def run_figure(scenario: Scenario, result, start_values: dict | None = None) -> FigureSpec | None:
     """The figure of a run of a suite scenario, or None if the scenario is not one (no plant and
     controller FMU of this suite) or the result lacks the plant state or the input."""
+    from ..engine.ssd import with_values
     from . import design_facts
     from .reproduce import plant_and_controller, run_from_result
-    from ..engine.ssd import with_values
 
     try:
         plant, controller = plant_and_controller(scenario)

@@ -40,8 +40,7 @@ import numpy as np
 
 from ..engine.errors import ScenarioError
 from ..engine.ssd import Scenario, finite_number, read_scenario, with_values
-from .sweep_output import METRICS, columns, csv_cells
-
+from .sweep_output import columns, csv_cells
 
 # ---- the specification of a sweep ----------------------------------------------------------------
 
@@ -153,6 +152,11 @@ def _session(ssd: str, fmu_dir: str | None):
                 atexit.register(close_sessions)
             _sessions[key] = found
     return found
+
+
+def session_count() -> int:
+    """The sessions this process keeps (one per worker thread and scenario)."""
+    return len(_sessions)
 
 
 def close_sessions() -> int:
@@ -330,7 +334,7 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
             end = time.perf_counter()
             n_workers = len(client.nthreads())
         finally:
-            _close_on_workers(client)
+            close_on_workers(client)
     closed = time.perf_counter()
     info = {"scenario": scenario.name, "runs": len(rows), "failed": sum(r["status"] != "ok" for r in rows),
             "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",
@@ -365,7 +369,7 @@ class RowStream:
         self.file.close()
 
 
-def _close_on_workers(client) -> None:
+def close_on_workers(client) -> None:
     """Free the FMU instances on every worker (a long-lived cluster should not keep them)."""
     try:
         client.run(close_sessions)

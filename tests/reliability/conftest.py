@@ -3,13 +3,12 @@ subprocess that runs every FMU call (session), and the tally of cases written to
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
 import pytest
 
-from .harness import ALL, RESULTS_JSON, ROOT, TALLY, WorkerProcess
+from .harness import ALL, RESULTS_JSON, TALLY, WorkerProcess
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,6 @@
 """Harness of the reliability suite: the worker subprocess, the FMUs, the case tally.
 
-Every FMU call runs in a worker subprocess (`_worker.py`): a crash of the worker fails the test that
+Every FMU call runs in a worker subprocess (`fmu_worker.py`): a crash of the worker fails the test that
 caused it (with the request that killed it) and the next request starts a new worker; a request that
 takes longer than its timeout counts as a hang, kills the worker and fails the test.
 """
@@ -17,9 +17,9 @@ from collections import defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-WORKER = Path(__file__).with_name("_worker.py")
+WORKER = Path(__file__).with_name("fmu_worker.py")
 sys.path.insert(0, str(WORKER.parent))
-import _worker  # noqa: E402  (protocol helpers; importing it loads no FMU)
+import fmu_worker  # noqa: E402  (protocol helpers; importing it loads no FMU)
 
 sys.path.remove(str(WORKER.parent))
 
@@ -36,7 +36,7 @@ class WorkerCrash(AssertionError):
 
 
 class WorkerProcess:
-    """A persistent worker subprocess speaking the line protocol of `_worker.py`."""
+    """A persistent worker subprocess speaking the line protocol of `fmu_worker.py`."""
 
     def __init__(self):
         self.proc: subprocess.Popen | None = None
@@ -59,10 +59,10 @@ class WorkerProcess:
             if self.proc is not None:
                 self.restarts += 1
             self._start()
-        self.proc.stdin.write((_worker.dumps(request) + "\n").encode())
+        self.proc.stdin.write((fmu_worker.dumps(request) + "\n").encode())
         self.proc.stdin.flush()
         line = self._read_line(timeout, request)
-        answer = _worker.loads(line[len(_worker.RESULT_PREFIX):])
+        answer = fmu_worker.loads(line[len(fmu_worker.RESULT_PREFIX):])
         if "harness_error" in answer:
             raise RuntimeError(f"harness error for {request['cmd']}: {answer['harness_error']}")
         return answer["answer"]
@@ -88,7 +88,7 @@ class WorkerProcess:
                                       f"stderr: {self.stderr_tail()}")
                 buf += chunk
                 if buf.endswith(b"\n"):
-                    lines = [x for x in buf.decode().splitlines() if x.startswith(_worker.RESULT_PREFIX)]
+                    lines = [x for x in buf.decode().splitlines() if x.startswith(fmu_worker.RESULT_PREFIX)]
                     if lines:
                         return lines[-1]
         finally:
@@ -107,18 +107,18 @@ class WorkerProcess:
 
 
 def _short(request: dict) -> str:
-    text = _worker.dumps(request)
+    text = fmu_worker.dumps(request)
     return text if len(text) < 600 else text[:600] + "..."
 
 
 def run_worker_once(command: str, request: dict, timeout: float = 300.0) -> dict:
-    """Run one command in a fresh worker process (`_worker.py COMMAND JSON`)."""
-    proc = subprocess.run([sys.executable, str(WORKER), command, _worker.dumps(request)], capture_output=True,
+    """Run one command in a fresh worker process (`fmu_worker.py COMMAND JSON`)."""
+    proc = subprocess.run([sys.executable, str(WORKER), command, fmu_worker.dumps(request)], capture_output=True,
                           cwd=str(ROOT), timeout=timeout)
-    lines = [x for x in proc.stdout.decode().splitlines() if x.startswith(_worker.RESULT_PREFIX)]
+    lines = [x for x in proc.stdout.decode().splitlines() if x.startswith(fmu_worker.RESULT_PREFIX)]
     if proc.returncode != 0 or not lines:
         raise WorkerCrash(f"worker {command} exited with status {proc.returncode}: {proc.stderr.decode()[-2000:]}")
-    answer = _worker.loads(lines[-1][len(_worker.RESULT_PREFIX):])
+    answer = fmu_worker.loads(lines[-1][len(fmu_worker.RESULT_PREFIX):])
     if "harness_error" in answer:
         raise RuntimeError(answer["harness_error"])
     return answer["answer"]
@@ -152,3 +152,25 @@ class Tally:
 
 
 TALLY = Tally()
+
+
+def reset_case(identifier: str) -> dict:
+    """Parameters other than the defaults, and inputs varying per step."""
+    if identifier == "MEMS":
+        return {"h": 1e-6, "values": {"c1": 40e-9, "q_0": 2e-5}, "steps": [{"u": 20.0 + k} for k in range(8)],
+                "first_values": {"a1": 0.5}, "first_steps": [{"u": 30.0}] * 5}
+    if identifier == "Maglev":
+        return {"h": 1e-3, "values": {"R_e": 2.0, "q_0": 0.002}, "steps": [{"u": 0.5 + 0.1 * k} for k in range(8)],
+                "first_values": {"m": 0.1}, "first_steps": [{"u": 3.0}] * 5}
+    if identifier == "Reference":
+        return {"h": 1e-3, "values": {"kind": 2, "q_from": 1e-5, "q_to": 2e-5, "t_start": 1e-3, "duration": 4e-3},
+                "steps": [{}] * 8, "first_values": {"kind": 1, "omega": 50.0}, "first_steps": [{}] * 5}
+    mems = identifier.startswith("MEMS")
+    base = {"q": 2.5e-5, "p": 1e-10, "x_e": 4e-11} if mems else {"q": 0.002, "p": 0.001, "x_e": 0.9}
+    jet = ({"q_star": 3e-5, "q_star_dot": 0.01, "q_star_ddot": -3.0, "q_star_dddot": 100.0} if mems else
+           {"q_star": 0.002, "q_star_dot": 0.01, "q_star_ddot": -0.3, "q_star_dddot": 2.0})
+    inputs = dict(base, **jet) if identifier.endswith(("Theorem2", "Theorem3")) else base
+    steps = [{k: v * (1 + 0.03 * i) for k, v in inputs.items()} for i in range(8)]
+    gains = {"MEMS_Proposition1": {"D_d": 2e-5}, "MEMS_Theorem2": {"D_d": -0.3},
+             "Maglev_Proposition2": {"q_d": 0.002}, "Maglev_Theorem3": {"D_d": -0.5}}[identifier]
+    return {"h": 1e-6, "values": gains, "steps": steps, "first_values": {}, "first_steps": steps[::-1]}

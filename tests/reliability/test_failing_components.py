@@ -9,9 +9,9 @@ import math
 
 import pytest
 
-from .harness import ROOT
-from .scenarios import build_faulty_fmu, emcosim_run, one_line_error, partial_of, read_csv, real, write_scenario
 from emcosim.engine.ssd import Connector
+
+from .scenarios import build_faulty_fmu, emcosim_run, one_line_error, partial_of, read_csv, write_scenario
 
 pytestmark = pytest.mark.reliability
 

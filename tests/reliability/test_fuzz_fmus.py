@@ -25,11 +25,11 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from components import certificates, catalog, maglev, mems, references
+from components import catalog, certificates, maglev, mems
 from components.ph_plant import Jet
 from components.plant_step import PlantStepper
 
-from .harness import DISCARD, ERROR, OK, WARNING
+from .harness import DISCARD, ERROR, OK
 
 pytestmark = pytest.mark.reliability
 
@@ -138,7 +138,8 @@ def judge_plant(identifier: str, values: dict, h: float, inputs: list[float], r:
         flows = e["dissipated"] + e["supplied_abs"]
         balance = e["supplied"] - e["dissipated"]
         dH = after["H"] - before["H"]
-        tol = max(ENERGY_RTOL_MIN, ENERGY_RTOL_FACTOR * full["rtol"]) * flows + 1e-12 * (abs(after["H"]) + abs(before["H"])) + 1e-300
+        tol = (max(ENERGY_RTOL_MIN, ENERGY_RTOL_FACTOR * full["rtol"]) * flows
+               + 1e-12 * (abs(after["H"]) + abs(before["H"])) + 1e-300)
         assert abs(dH - balance) <= tol, (f"energy balance violated at step {k}: H(t+h) - H(t) = {dH:.17g}, "
                                           f"int P dt = {balance:.17g} (flows {flows:.3g}, tol {tol:.3g})")
         _ENERGY_ERRORS.append((abs(dH - balance) / (flows + 1e-300), abs(dH - balance) / tol, values, h, u))

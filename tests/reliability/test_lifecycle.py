@@ -17,7 +17,7 @@ import sys
 
 import pytest
 
-from .harness import ALL, OK, ROOT, WORKER, WorkerCrash, WorkerProcess, _worker
+from .harness import ALL, OK, ROOT, WORKER, WorkerCrash, WorkerProcess, fmu_worker, reset_case
 
 pytestmark = pytest.mark.reliability
 
@@ -41,7 +41,7 @@ def lifecycles(reliability_fmus, tally) -> dict[str, dict]:
         while pending and len(running) < 2:
             identifier = pending.pop(0)
             running[identifier] = subprocess.Popen(
-                [sys.executable, str(WORKER), "lifecycle", _worker.dumps(_request(identifier, reliability_fmus[identifier]))],
+                [sys.executable, str(WORKER), "lifecycle", fmu_worker.dumps(_request(identifier, reliability_fmus[identifier]))],
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(ROOT))
         identifier = next(iter(running))
         proc = running.pop(identifier)
@@ -50,13 +50,14 @@ def lifecycles(reliability_fmus, tally) -> dict[str, dict]:
         except subprocess.TimeoutExpired:
             proc.kill()
             out, err = proc.communicate()
-            results[identifier] = {"crash": f"hung for more than 600 s"}
+            results[identifier] = {"crash": "hung for more than 600 s"}
             continue
-        lines = [x for x in out.decode().splitlines() if x.startswith(_worker.RESULT_PREFIX)]
+        lines = [x for x in out.decode().splitlines() if x.startswith(fmu_worker.RESULT_PREFIX)]
         if not lines:
             results[identifier] = {"crash": f"exit status {proc.returncode}: {err.decode()[-1500:]}"}
         else:
-            results[identifier] = _worker.loads(lines[-1][len(_worker.RESULT_PREFIX):]).get("answer") or {"crash": lines[-1]}
+            answer = fmu_worker.loads(lines[-1][len(fmu_worker.RESULT_PREFIX):]).get("answer")
+            results[identifier] = answer or {"crash": lines[-1]}
         results[identifier]["exit"] = (proc.returncode, err.decode()[-300:])
     for identifier, r in results.items():
         if r.get("ok"):
@@ -98,7 +99,7 @@ def test_processes_that_keep_the_library_loaded_exit_cleanly(reliability_fmus):
     processes aborted after one lifecycle of MEMS_Theorem2 and 11 to 13 of 40 after 1000; with it, 0 of 24
     and 0 of 40. Each process here runs one lifecycle and exits; all N_EXITS must end with status 0
     (without the handler this passes with probability about 0.75**20 = 0.3 %)."""
-    request = _worker.dumps({"fmu": str(reliability_fmus["MEMS_Theorem2"]), "n": 1, "h": 1e-6, "warmup": 0})
+    request = fmu_worker.dumps({"fmu": str(reliability_fmus["MEMS_Theorem2"]), "n": 1, "h": 1e-6, "warmup": 0})
     statuses = []
     for batch in range(N_EXITS // 2):                                      # two processes at a time
         procs = [subprocess.Popen([sys.executable, str(WORKER), "lifecycle", request], cwd=str(ROOT),
@@ -111,33 +112,11 @@ def test_processes_that_keep_the_library_loaded_exit_cleanly(reliability_fmus):
 
 
 # ---- fmi2Reset ----------------------------------------------------------------------------------------
-def _reset_case(identifier: str) -> dict:
-    """Parameters other than the defaults, and inputs varying per step."""
-    if identifier == "MEMS":
-        return {"h": 1e-6, "values": {"c1": 40e-9, "q_0": 2e-5}, "steps": [{"u": 20.0 + k} for k in range(8)],
-                "first_values": {"a1": 0.5}, "first_steps": [{"u": 30.0}] * 5}
-    if identifier == "Maglev":
-        return {"h": 1e-3, "values": {"R_e": 2.0, "q_0": 0.002}, "steps": [{"u": 0.5 + 0.1 * k} for k in range(8)],
-                "first_values": {"m": 0.1}, "first_steps": [{"u": 3.0}] * 5}
-    if identifier == "Reference":
-        return {"h": 1e-3, "values": {"kind": 2, "q_from": 1e-5, "q_to": 2e-5, "t_start": 1e-3, "duration": 4e-3},
-                "steps": [{}] * 8, "first_values": {"kind": 1, "omega": 50.0}, "first_steps": [{}] * 5}
-    mems = identifier.startswith("MEMS")
-    base = {"q": 2.5e-5, "p": 1e-10, "x_e": 4e-11} if mems else {"q": 0.002, "p": 0.001, "x_e": 0.9}
-    jet = ({"q_star": 3e-5, "q_star_dot": 0.01, "q_star_ddot": -3.0, "q_star_dddot": 100.0} if mems else
-           {"q_star": 0.002, "q_star_dot": 0.01, "q_star_ddot": -0.3, "q_star_dddot": 2.0})
-    inputs = dict(base, **jet) if identifier.endswith(("Theorem2", "Theorem3")) else base
-    steps = [{k: v * (1 + 0.03 * i) for k, v in inputs.items()} for i in range(8)]
-    gains = {"MEMS_Proposition1": {"D_d": 2e-5}, "MEMS_Theorem2": {"D_d": -0.3},
-             "Maglev_Proposition2": {"q_d": 0.002}, "Maglev_Theorem3": {"D_d": -0.5}}[identifier]
-    return {"h": 1e-6, "values": gains, "steps": steps, "first_values": {}, "first_steps": steps[::-1]}
-
-
 @pytest.mark.parametrize("identifier", ALL)
 def test_reset_then_run_equals_fresh_instance(reliability_fmus, worker, tally, identifier):
     """Run A on a fresh instance; on another instance: a different run (other parameters), fmi2Reset,
     then run A again: the outputs are bit-identical."""
-    case = _reset_case(identifier)
+    case = reset_case(identifier)
     r = worker.call({"cmd": "reset", "fmu": str(reliability_fmus[identifier]), **case})
     assert r["fresh"][0] == OK and all(s == OK for s, _ in r["fresh"][1]), r
     assert r["reset_status"] == OK, f"fmi2Reset returned {r['reset_status']}: {r['errors']}"

@@ -105,7 +105,7 @@ PARAM = "ssv:Parameters/ssv:Parameter[@name='m']"
 DESIGNED = {
     "delete System": delete_child(".", "ssd:System"),
     "delete Elements": delete_child("ssd:System", "ssd:Elements"),
-    "delete the plant component": delete_child("ssd:System/ssd:Elements", f"ssd:Component[@name='plant']"),
+    "delete the plant component": delete_child("ssd:System/ssd:Elements", "ssd:Component[@name='plant']"),
     "delete a connector": delete_child(f"{PLANT}/ssd:Connectors", "ssd:Connector[@name='q']"),
     "delete a connector's type": delete_child(f"{PLANT}/ssd:Connectors/ssd:Connector[@name='q']", "ssc:Real"),
     "delete component name": set_attr(PLANT, "name", None),
@@ -154,7 +154,8 @@ DESIGNED = {
     "truncated .ssv": text("plant.ssv", lambda b: b[: len(b) - 30]),
     "empty .ssd": text("SystemStructure.ssd", lambda b: b""),
     "binary garbage .ssd": text("SystemStructure.ssd", lambda b: bytes(range(256)) * 4),
-    "latin-1 bytes in .ssv": text("plant.ssv", lambda b: b.replace(b"<ssv:Parameters>", b"<!-- masse \xe9\xe8 --><ssv:Parameters>")),
+    "latin-1 bytes in .ssv": text("plant.ssv", lambda b: b.replace(b"<ssv:Parameters>",
+                                                                   b"<!-- masse \xe9\xe8 --><ssv:Parameters>")),
     "undeclared namespace prefix": text("SystemStructure.ssd", lambda b: b.replace(b"<ssd:Connections>", b"<foo:Connections>")),
 }
 # the maglev base has no reference component: mutations on it use the same names where they apply

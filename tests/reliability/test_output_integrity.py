@@ -10,7 +10,6 @@ killed run are removed at the next start; memory stays flat on any horizon."""
 from __future__ import annotations
 
 import csv
-import os
 import resource
 import signal
 import subprocess

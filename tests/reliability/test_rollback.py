@@ -7,8 +7,7 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from .harness import ALL
-from .test_lifecycle import _reset_case
+from .harness import ALL, reset_case
 
 pytestmark = pytest.mark.reliability
 
@@ -19,7 +18,7 @@ OPS = st.lists(st.one_of(st.just(["step"]), st.just(["step"]), st.just(["step"])
 
 
 def _case(identifier: str) -> dict:
-    case = _reset_case(identifier)
+    case = reset_case(identifier)
     steps = (case["steps"] * 2)[:N_STEPS]
     if identifier in ("MEMS", "Maglev"):                 # inputs that differ at every step
         steps = [{"u": s["u"] * (1 + 0.01 * k)} for k, s in enumerate(steps)]

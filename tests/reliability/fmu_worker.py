@@ -3,8 +3,8 @@ pytest process, so that a crash (segfault, abort) or a hang of an FMU shows up a
 
 Protocol: one JSON request per line on stdin, one JSON answer per line on stdout (the last line
 starting with RESULT_PREFIX; anything the FMUs print goes to stderr). A request is
-{"cmd": name, ...}; see the `cmd_*` functions. Run `python _worker.py` (serve) or
-`python _worker.py lifecycle '{"fmu": ..., "n": 1000}'` (one command, then exit).
+{"cmd": name, ...}; see the `cmd_*` functions. Run `python fmu_worker.py` (serve) or
+`python fmu_worker.py lifecycle '{"fmu": ..., "n": 1000}'` (one command, then exit).
 
 The FMUs are driven through fmpy's FMU2Slave with raw status handling (no exception ends a case).
 """
@@ -24,11 +24,19 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-import numpy as np                                                       # noqa: E402
-from fmpy import calloc, extract, free, read_model_description          # noqa: E402
-from fmpy.fmi1 import FMICallException                                   # noqa: E402
-from fmpy.fmi2 import (FMU2Slave, fmi2Integer, fmi2Real, fmi2ValueReference, fmi2CallbackAllocateMemoryTYPE,        # noqa: E402
-                       fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+import numpy as np  # noqa: E402
+from fmpy import calloc, extract, free, read_model_description  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import (  # noqa: E402
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    fmi2Integer,
+    fmi2Real,
+    fmi2ValueReference,
+)
 
 RESULT_PREFIX = "@@RESULT "
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4

@@ -44,6 +44,7 @@ from components.proposition1 import Proposition1  # noqa: E402
 from components.proposition2 import Proposition2  # noqa: E402
 from components.theorem2 import Theorem2  # noqa: E402
 from components.theorem3 import Theorem3  # noqa: E402
+from emcosim.engine.fmi import raw as raw_function  # noqa: E402
 
 H = {"MEMS": 1e-6, "Maglev": 1e-3}             # maglev: 1e-3 s, its default experiment's step
 JET = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
@@ -66,9 +67,9 @@ class Raw:
         self.fmu.exitInitializationMode()
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
         self.start = {v.name: float(v.start) for v in self.md.modelVariables if v.start is not None}
-        f = self.fmu._functions
         self.c = self.fmu.component
-        self.do_step, self.set_real, self.get_real = f["fmi2DoStep"], f["fmi2SetReal"], f["fmi2GetReal"]
+        self.do_step, self.set_real, self.get_real = (raw_function(self.fmu, name) for name in ("fmi2DoStep", "fmi2SetReal",
+                                                                                       "fmi2GetReal"))
 
     def refs(self, names):
         return (ctypes.c_uint * len(names))(*(self.vr[n] for n in names)), (ctypes.c_double * len(names))()
@@ -193,7 +194,7 @@ def floor_fmus(folder: Path) -> dict[str, Path]:
     """The two floor FMUs, built into `folder`: "floor" (loader, as the FMUs) and "raw pythonfmu"."""
     from pythonfmu import FmuBuilder
 
-    import build
+    from fmus import build
 
     fixtures = ROOT / "tests" / "fixtures"
     floor = build.build_fmus({"FloorGain": fixtures / "emcosim_toy_floor.py"}, folder / "floor")["FloorGain"]
@@ -296,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5, help="C host: processes per FMU (median)")
     args = parser.parse_args(argv)
     folder = Path(args.fmus)
-    import build
+    from fmus import build
     build.build(folder, verbose=False)                       # a no-op when the FMUs are up to date
     speed = machine_speed_us()
     with tempfile.TemporaryDirectory() as tmp:

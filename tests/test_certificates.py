@@ -303,6 +303,7 @@ def paper_certificates():
     return {n: certify_scenario(ROOT / "scenarios" / n) for n in scenario_names()}
 
 
+@pytest.mark.slow                        # about 45 s
 def test_sdp_rate_is_at_least_the_direct_search_on_every_paper_scenario(paper_certificates):
     """Over the same samples: where the SDP certifies a rate it is >= the search's (to rounding); where
     the SDP says no constant metric exists, its proof (a dual certificate or a sample's eigenvalue) bounds

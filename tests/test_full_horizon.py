@@ -10,6 +10,9 @@ rtol 1e-9, Hermite-interpolated at the run's own communication points):
 mems_regulation_Dd-1 and mems_tracking_Dd-0.4 run with implicit coupling (their scenarios' default:
 explicit coupling of their stiff loops needed steps of 4e-6 s and 1e-6 s).
 
+Model Exchange (`interface_type="ModelExchange"`, the default solver): `tolerance=TOL` gives an error of at
+most TOL for TOL in ME_BAND (the engine's global-error control: model_exchange.ModelExchangeSimulation).
+
 Cost (docs/scenarios.md gives the measured numbers): each scenario's reference and runs go to one
 of two worker processes."""
 from __future__ import annotations
@@ -23,10 +26,13 @@ import pytest
 
 from emcosim.paper import scenarios as paper_scenarios
 
+pytestmark = pytest.mark.slow            # about 90 s on 2 cores
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [c.name for c in paper_scenarios.cases()]
 ACCURACY = 1e-3
 BAND = (1e-2, 1e-3, 1e-4, 1e-5)
+ME_BAND = (1e-3, 1e-4)
 TOLERANCES = {name: BAND for name in SCENARIOS}
 FIRST = ["mems_tracking_Dd-0.4", "maglev_tracking_D0_R0.82"]       # the longest, started first
 
@@ -34,6 +40,7 @@ FIRST = ["mems_tracking_Dd-0.4", "maglev_tracking_D0_R0.82"]       # the longest
 def run_scenario(name: str, fmu_dir: str) -> dict:
     """In a worker process: the reference, the default run and the error-controlled runs of `name`."""
     from emcosim.engine.master import Simulation
+    from emcosim.engine.model_exchange import ModelExchangeSimulation
     from emcosim.engine.ssd import read_scenario
     from emcosim.paper.reference_check import truth
 
@@ -47,6 +54,11 @@ def run_scenario(name: str, fmu_dir: str) -> dict:
         for tol in TOLERANCES[name]:
             r = sim.run(tolerance=tol, record=["plant.q"])
             out["band"][tol] = (ref.position_error(r.time, r["plant.q"]), dataclasses.asdict(r.step_control))
+    out["model_exchange"] = {}
+    with ModelExchangeSimulation(s) as sim:
+        for tol in ME_BAND:
+            r = sim.run(tolerance=tol, record=["plant.q"])
+            out["model_exchange"][tol] = (ref.position_error(r.time, r["plant.q"]), r.model_exchange.summary())
     return out
 
 
@@ -74,3 +86,9 @@ def test_error_controlled_runs_keep_the_tolerance_over_the_full_horizon(name, fu
         assert err <= 3 * tol, (name, tol, err, report)
         if report["held"] < 0.5:
             assert err >= tol / 10, (name, tol, err, report)
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_model_exchange_runs_keep_the_tolerance_over_the_full_horizon(name, full_runs):
+    for tol, (err, summary) in full_runs[name]["model_exchange"].items():
+        assert err <= tol, (name, tol, err, summary)

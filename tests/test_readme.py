@@ -46,6 +46,7 @@ def _tracked_copy(target: Path) -> None:
             shutil.copy2(ROOT / name, target / name)
 
 
+@pytest.mark.slow                        # about 3 minutes
 def test_every_readme_command_runs_in_a_fresh_venv(tmp_path):
     if shutil.which("python3.11") is None:
         pytest.skip("the README's commands need python3.11 on PATH")
@@ -62,7 +63,8 @@ def test_every_readme_command_runs_in_a_fresh_venv(tmp_path):
         assert run.returncode == 0, f"{command}\n{run.stdout[-2000:]}\n{run.stderr[-3000:]}"
         print(f"{time.monotonic() - tic:6.1f} s  {command}")                # pytest -s shows the costs
     for name in ["results/claims.md", "results/fig3_maglev_tracking.png", "r.png", "r.csv", "mems_tracking_Dd-0.4.csv",
-                 "loop.fmu", "loop.csv", "mems.csv", "jet.csv", "sweep_maglev_tracking_D0_R0.82/sweep.csv"]:
+                 "loop.fmu", "loop.csv", "mems.csv", "jet.csv", "sweep_maglev_tracking_D0_R0.82/sweep.csv", "me.csv",
+                 "mems_me.csv"]:
         assert (repo / name).stat().st_size > 0, name
     claims = json.loads((repo / "results" / "claims.json").read_text())
     assert claims["banner"] is None and len(claims["claims"]) == 14

@@ -46,6 +46,17 @@ def wait_for_rows(path_glob, folder: Path, rows: int, timeout: float = 60) -> Pa
     raise AssertionError(f"no {path_glob} with {rows} rows in {folder} after {timeout} s")
 
 
+def _wait_for_growth(path: Path, size: int, timeout: float = 120) -> int:
+    """The size of `path` once it has reached `size` bytes (the run keeps writing rows)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        now = path.stat().st_size
+        if now >= size:
+            return now
+        time.sleep(0.05)
+    raise AssertionError(f"{path} did not reach {size} bytes in {timeout} s")
+
+
 def complete_rows(path: Path) -> list[dict[str, float]]:
     """The rows of a result file, each as {column name: value} (comment lines skipped)."""
     with open(path, newline="") as f:
@@ -88,8 +99,7 @@ def test_kill_9_keeps_the_flushed_rows_and_the_next_start_cleans_up(toys, tmp_pa
     loop = toy_loop(tmp_path / "loop", toys)
     out = tmp_path / "r.csv"
     proc = popen(["run", str(loop), "-o", str(out), *LONG], env=env)
-    incomplete = wait_for_rows("r.incomplete-*.csv", tmp_path, 2000)
-    time.sleep(1.5)
+    incomplete = wait_for_rows("r.incomplete-*.csv", tmp_path, 4000)      # rows flushed while the run goes on
     unpacked = [d for d in tmp.iterdir() if d.name.startswith(f"emcosim-{proc.pid}-")]
     proc.kill()
     proc.wait()
@@ -116,8 +126,7 @@ def test_signal_stops_between_steps_and_keeps_the_rows(fmu_dir, tmp_path, tally,
     out = tmp_path / "r.csv"
     proc = popen(["run", "maglev_tracking_D0_R2.82", "--fmu-dir", str(fmu_dir), "-o", str(out), "--no-progress",
                   "--step-size", "5e-4"])                # 80000 steps: long enough to be stopped mid-run
-    wait_for_rows("r.incomplete-*.csv", tmp_path, 100)
-    time.sleep(1.0)
+    wait_for_rows("r.incomplete-*.csv", tmp_path, 200)                   # mid-run: a few hundred steps done
     proc.send_signal(signum)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == status, (proc.returncode, err)
@@ -174,17 +183,15 @@ def test_long_horizon_streams_to_disk_with_flat_memory(toys, tmp_path, tally):
     loop = toy_loop(tmp_path / "loop", toys)
     out = tmp_path / "r.csv"
     proc = popen(["run", str(loop), "-o", str(out), *LONG])
-    incomplete = wait_for_rows("r.incomplete-*.csv", tmp_path, 2000)
-    time.sleep(1.0)
+    incomplete = wait_for_rows("r.incomplete-*.csv", tmp_path, 4000)
     rss0, size0 = _rss_kib(proc.pid), incomplete.stat().st_size
-    time.sleep(3.0)
-    rss1, size1 = _rss_kib(proc.pid), incomplete.stat().st_size
+    size1 = _wait_for_growth(incomplete, size0 + 2_000_000)            # ~30,000 more rows on the disk
+    rss1 = _rss_kib(proc.pid)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err
-    assert size1 > size0 + 100_000, (size0, size1)              # rows kept reaching the disk
-    assert rss1 - rss0 < 2048, f"memory grew by {rss1 - rss0} KiB in 3 s"        # kept in memory: ~15 MiB
+    assert rss1 - rss0 < 2048, f"memory grew by {rss1 - rss0} KiB while {size1 - size0} bytes of rows were written"
     rows = len(read_csv(partial_of(out))["time"])
     tally.add("output_integrity", "stop time 1e6 (streamed)", "correct")
-    tally.measurements["output_integrity"]["long_run"] = {"rss_growth_kib_3s": rss1 - rss0, "rows": rows,
-                                                          "bytes_written_3s": size1 - size0}
+    tally.measurements["output_integrity"]["long_run"] = {"rss_growth_kib": rss1 - rss0, "rows": rows,
+                                                          "bytes_written": size1 - size0}

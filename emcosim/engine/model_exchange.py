@@ -17,13 +17,16 @@ dy/du du/dx with du/dx = factor dy_source/dx along each connection. Otherwise th
 differences.
 
 After each solver step the rows on the recording grid t0 + n h are taken from the solver's dense output
-(the FMUs set to the interpolated state), or, with `solver_steps`, one row at every step. Events: the
-FMUs' event indicators are compared between steps; a sign change is located on the dense output (brentq)
-and every FMU enters event mode there (fmi2EnterEventMode, fmi2NewDiscreteStates until none asks for more);
-an FMU that refuses (fmi2Error: e.g. a state on the boundary of its model's domain) or asks to terminate
-ends the run with a SimulationError (the rows so far are kept); changed states restart the solver. Time
-events (nextEventTime) bound the solver's steps. The engine knows no model: any FMI 2.0 Model Exchange FMUs
-wired by an SSP scenario run this way.
+(the FMUs set to the interpolated state; a grid point at an event's time gets the values after the event,
+as a Co-Simulation step to that time would), or, with `solver_steps`, one row at every step (at an event,
+the values before it). Events: the FMUs' event indicators are compared between steps; a change of domain
+(z > 0 or z <= 0, FMI 2.0 section 3.1) is located on the dense output (brentq, then the first time found in
+the new domain, so that the FMU sees its event's condition) and every FMU enters event mode there
+(fmi2EnterEventMode, fmi2NewDiscreteStates until none asks for more); an FMU that refuses (fmi2Error: e.g.
+a state on the boundary of its model's domain) or asks to terminate ends the run with a SimulationError
+(the rows so far are kept); changed states restart the solver. Time events (nextEventTime, from the initial
+event on) bound the solver's steps, up to and including the stop time. The engine knows no model: any
+FMI 2.0 Model Exchange FMUs wired by an SSP scenario run this way.
 """
 from __future__ import annotations
 
@@ -489,11 +492,11 @@ class ModelExchangeSimulation:
         result = Result(plan.columns, sink=sink)
         system.statistics = Statistics(name, rtol, exact_jacobian=system.jacobian_plan is not None)
         result.model_exchange = system.statistics
-        _initialize(system, parameters, planned, rtol)
+        next_event = _initialize(system, parameters, planned, rtol)
         result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
                            for m in inst.messages if m.startswith("[warning]")]
         try:
-            _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps)
+            _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps, next_event)
         except SimulationError as exc:
             exc.result = result
             raise
@@ -515,9 +518,10 @@ def _transfers(plan: Plan) -> list:
     return [t for gets, sets in plan.stages for t, _ in gets + sets] + [t for t, _ in plan.record]
 
 
-def _initialize(system: System, parameters, planned: Experiment, rtol: float) -> None:
+def _initialize(system: System, parameters, planned: Experiment, rtol: float) -> float | None:
     """Set up, set the parameters, propagate the outputs in initialization mode, leave it, settle the
-    initial event, enter continuous-time mode (FMI 2.0, section 3.2.3)."""
+    initial event, enter continuous-time mode (FMI 2.0, section 3.2.3). Returns the first time event (the
+    initial event's nextEventTime) or None."""
     for unit in system.units:
         inst = unit.inst
         fmu = inst.fmu
@@ -540,16 +544,17 @@ def _initialize(system: System, parameters, planned: Experiment, rtol: float) ->
             except FMICallException as exc:
                 raise ScenarioError(f"{unit.inst.path.name}: component '{unit.inst.name}' failed in {exc.function}"
                                     f"{last_message(unit.inst)}") from None
-        system.discrete_states(planned.start_time)
+        _, next_event = system.discrete_states(planned.start_time)
         for unit in system.units:
             system._call(unit, "fmi2EnterContinuousTimeMode")
     except SimulationError as exc:
         raise ScenarioError(f"initialization: {exc}") from None
     system.scale = system.nominals()
+    return next_event
 
 
 def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
-               progress, solver_steps: bool) -> None:
+               progress, solver_steps: bool, next_event: float | None = None) -> None:
     t0, t_stop, h = planned.start_time, planned.stop_time, planned.step_size
     n_rows = max(1, math.ceil((t_stop - t0) / h - 1e-9))
     grid = [t0 + k * h for k in range(n_rows)] + [t_stop]
@@ -558,7 +563,7 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
     system.set_point(t, xi, record=True)
     result.append(t, system.row())
     k = 1                                                       # the next grid point to record
-    next_event: float | None = None
+    stalled = 0                                                 # state events in a row at one time
     jac = system.jacobian if system.jacobian_plan is not None else None
     z = system.indicators(t, xi) if system.with_indicators else None
     every = max(1, n_rows // 200)
@@ -576,7 +581,10 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
             event_at = None
             if z is not None:
                 z_new = system.indicators(t_new, x_new)
-                crossed = np.flatnonzero(np.sign(z_new) != np.sign(z))
+                # a change of domain, z > 0 or z <= 0 (FMI 2.0 section 3.1); an indicator at exactly 0 where
+                # the step starts (an FMU resets a state to its boundary at an event: a ball at h = 0) takes
+                # its domain from where it goes, so leaving 0 is no event
+                crossed = np.flatnonzero(((z_new > 0) != (z > 0)) & (z != 0))
                 if crossed.size:
                     dense = solver.dense_output()
                     event_at = min(_locate(system, dense, solver.t_old, t_new, int(i)) for i in crossed)
@@ -584,9 +592,14 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
             if event_at is None and system.completed_step(t_new, x_new):
                 event_at = t_new
             if event_at is not None:
+                stalled = stalled + 1 if event_at <= t + 1e-12 * max(1.0, abs(t)) else 0
+                if stalled > MAX_EVENT_ITERATIONS:
+                    raise SimulationError(f"Model Exchange: the events at t = {t:.9g} s do not end: {stalled} events "
+                                          "in a row without the time moving on (an event indicator that its FMU's "
+                                          "event does not move out of its domain)")
                 dense = solver.dense_output()
                 x_event = dense(event_at) if event_at < t_new else x_new
-                k = _record(system, result, dense, grid, k, event_at, solver_steps, x_event)
+                k = _record(system, result, dense, grid, k, event_at, solver_steps, x_event, before_event=True)
                 system.set_point(event_at, x_event)
                 system.statistics.events += 1
                 changed, next_event = system.event(event_at)
@@ -595,37 +608,51 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
                 z = system.indicators(t, xi) if system.with_indicators else None
                 restart = True
                 continue
-            k = _record(system, result, solver.dense_output(), grid, k, t_new, solver_steps, x_new)
+            time_event = next_event is not None and t_new >= next_event
+            k = _record(system, result, solver.dense_output(), grid, k, t_new, solver_steps, x_new, time_event)
             t, xi = t_new, x_new
             if progress is not None and system.statistics.steps % every == 0:
                 progress((t - t0) / (t_stop - t0))
-        if not restart and next_event is not None and t >= next_event and t < t_stop:
+        if not restart and next_event is not None and t >= next_event:
             system.set_point(t, xi)
             system.statistics.events += 1
             changed, next_event = system.event(t)
             if changed:
                 xi = system.states() / system.scale
+    if not solver_steps and k < len(grid):                      # the stop time's row, after an event there
+        system.set_point(t, xi, record=True)
+        result.append(t, system.row())
     if progress is not None:
         progress(1.0)
 
 
 def _locate(system: System, dense, t_a: float, t_b: float, i: int) -> float:
-    """The time of indicator i's zero in (t_a, t_b] on the dense output."""
+    """The time of indicator i's change of domain (z > 0 or z <= 0) in (t_a, t_b] on the dense output: a
+    time at which the indicator is in its new domain, within xtol of the zero, so that the FMUs see the
+    event's condition there (a ball at h = +1e-14 has not reached the floor, and would not bounce)."""
     def g(tt):
         return system.indicators(tt, dense(tt))[i]
-    if g(t_a) * g(t_b) > 0:
+    old = g(t_a) > 0
+    if (g(t_b) > 0) == old:
         return t_b
-    return brentq(g, t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)), rtol=4 * np.finfo(float).eps)
+    xtol = 1e-12 * max(1.0, abs(t_b))
+    t = brentq(g, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
+    step = xtol
+    while t < t_b and (g(t) > 0) == old:                 # brentq's zero may lie on the old side
+        t, step = min(t_b, t + step), 2 * step
+    return t
 
 
 def _record(system: System, result: Result, dense, grid: list[float], k: int, t_end: float, solver_steps: bool,
-            x_end: np.ndarray) -> int:
-    """The rows up to t_end: the grid points (from the dense output), or the step's end (solver_steps)."""
+            x_end: np.ndarray, before_event: bool = False) -> int:
+    """The rows up to t_end: the grid points (from the dense output), or the step's end (solver_steps).
+    before_event: an event follows at t_end, so a grid point at t_end waits for the values after it (as a
+    Co-Simulation step to t_end gives them, and fmpy records them)."""
     if solver_steps:
         system.set_point(t_end, x_end, record=True)
         result.append(t_end, system.row())
         return k
-    while k < len(grid) and grid[k] <= t_end:
+    while k < len(grid) and (grid[k] < t_end or grid[k] == t_end and not before_event):
         tk = grid[k]
         x = x_end if tk >= t_end else dense(tk)
         system.set_point(tk, x, record=True)

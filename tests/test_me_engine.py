@@ -1,0 +1,355 @@
+"""The generic Model Exchange engine (emcosim/engine/model_exchange.py) on the C toy FMUs of
+tests/fixtures/toy_me.c (tests/toy_me_fmus.py), FMUs the engine did not grow up with.
+
+Independent truths, all closed forms:
+- Dahlquist x' = a x + b u in a loop with Gain u = k x: x(t) = x0 exp((a + b k) t); alone (u = 0):
+  x0 exp(a t); driven by the Clock's count (a = 0, b = 1): x(t) = sum_n max(0, t - n period).
+- The Jacobian of a chain of connections with linear transformations: the product of the partials and
+  factors along it.
+- BouncingBall h' = v, v' = -g from h0 at rest, v := -e v at h = 0: the bounces at t_1 = sqrt(2 h0 / g),
+  t_{n+1} = t_n + 2 e^n t_1, and h, v between them.
+The fixtures themselves are checked against an independent host first (fmpy's validation and its CVode
+Model Exchange simulation)."""
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from emcosim.engine import binding
+from emcosim.engine import model_exchange as me
+from emcosim.engine.errors import ScenarioError, SimulationError
+from emcosim.engine.master import simulate
+from emcosim.engine.options import RunOptions, experiment
+from emcosim.engine.outputs import PARTIAL_MARK
+from emcosim.engine.plan import make_plan
+from emcosim.engine.results import read_csv
+from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
+from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
+
+from tests import toy_fmus, toy_me_fmus
+
+ROOT = Path(__file__).resolve().parents[1]
+SOLVERS = ["LSODA", "BDF", "Radau"]
+ME = {"interface_type": "ModelExchange"}
+
+
+@pytest.fixture(scope="session")
+def toys(tmp_path_factory) -> dict[str, Path]:
+    fmus = toy_me_fmus.fmus(tmp_path_factory.mktemp("toy_me_fmus"))
+    if fmus is None:
+        pytest.skip("the C Model Exchange toys need gcc")
+    return fmus
+
+
+def connectors(fmu: Path) -> list[Connector]:
+    from fmpy import read_model_description
+    md = read_model_description(str(fmu))
+    return [Connector(v.name, v.causality, v.type) for v in md.modelVariables if v.causality in ("input", "output")]
+
+
+@pytest.fixture
+def make(tmp_path, toys):
+    """make(components, connections, parameters, stop_time, step_size, start_time) -> the scenario (read back
+    from its folder); components: [(name, toy kind or an .fmu path)]; connections: [(start, end[, factor,
+    offset])]; parameters: {component: {name: value}}."""
+    def build(components, connections=(), parameters=None, stop_time=1.0, step_size=0.01, start_time=0.0):
+        folder = tmp_path / f"s{len(list(tmp_path.iterdir()))}"
+        folder.mkdir()
+        comps = []
+        for name, kind in components:
+            fmu = Path(kind) if isinstance(kind, Path) else toys[kind]
+            if not (folder / fmu.name).exists():
+                shutil.copy(fmu, folder / fmu.name)
+            comp = Component(name, folder / fmu.name, connectors=connectors(fmu))
+            if parameters and name in parameters:
+                (folder / f"{name}.ssv").write_text(parameter_set_xml(
+                    name, [Parameter(k, "Real", float(v)) for k, v in parameters[name].items()]))
+                comp.parameter_sources = [f"{name}.ssv"]
+            comps.append(comp)
+        conns = [Connection(*a.split(".") + b.split("."), *rest) for a, b, *rest in connections]
+        scenario = Scenario("toy_me", folder / "SystemStructure.ssd", comps, conns, start_time=start_time,
+                            stop_time=stop_time)
+        (folder / "SystemStructure.ssd").write_text(
+            system_structure_xml(scenario, {c.name: c.source.name for c in comps}, step_size))
+        return read_scenario(folder)
+    return build
+
+
+# ---- the fixtures against an independent host --------------------------------------------------------
+def test_fixtures_are_valid_and_fmpy_reproduces_the_bounces(toys):
+    from fmpy import simulate_fmu
+    from fmpy.validation import validate_fmu
+
+    for kind, fmu in toys.items():
+        assert validate_fmu(str(fmu)) == [], kind
+    r = simulate_fmu(str(toys["BouncingBall"]), fmi_type="ModelExchange", stop_time=2.0, output_interval=1e-3,
+                     start_values={"e": 0.8}, relative_tolerance=1e-8)
+    v = r["v"]
+    bounces = r["time"][np.flatnonzero((v[:-1] < 0) & (v[1:] > 0))]       # fmpy records both sides of an event
+    np.testing.assert_allclose(bounces, bounce_times(9.81, 0.8, 1.0, 2.0), atol=1e-6)
+
+
+# ---- Dahlquist ------------------------------------------------------------------------------------------
+LOOP = dict(components=[("d", "Dahlquist"), ("g", "Gain"), ("f", "Dahlquist")],
+            connections=[("d.x", "g.u"), ("g.y", "d.u")])
+LOOP_PARAMETERS = {"d": {"a": -0.5, "b": 1.0, "x0": 2.0}, "g": {"k": -1.5},    # x' = -2 x
+                   "f": {"a": -1e4, "x0": 1.0, "nominal": 1e-3}}                # alone: stiff, x' = -1e4 x
+
+
+def loop_errors(r) -> tuple[float, float]:
+    """The loop's and the stiff Dahlquist's largest errors against the closed forms, relative to their
+    largest magnitudes."""
+    return (float(np.max(np.abs(r["d.x"] - 2 * np.exp(-2 * r.time))) / 2),
+            float(np.max(np.abs(r["f.x"] - np.exp(-1e4 * r.time)))))
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_dahlquist_loop_and_alone_with_exact_jacobian(make, solver):
+    """The loop x' = (a + b k) x beside a stiff Dahlquist alone (so that LSODA turns to its stiff method
+    and asks for Jacobians), each against its closed form at rtol 1e-7; the Jacobians come from the FMUs'
+    directional derivatives. A Dahlquist FMU that does not declare them makes the solver take finite
+    differences, with the same answer."""
+    rtol = 1e-7
+    r = simulate(make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0), **ME, solver=solver, rtol=rtol,
+                 record=["d.x", "g.y", "f.x"])
+    loop, alone = loop_errors(r)
+    assert loop < 20 * rtol and alone < 20 * rtol, (loop, alone)
+    np.testing.assert_allclose(r["g.y"], -1.5 * r["d.x"], rtol=1e-15)
+    stats = r.model_exchange
+    assert stats.solver == solver and stats.exact_jacobian and stats.jacobians > 0, stats.summary()
+
+    fd = dict(LOOP, components=[("d", "Dahlquist"), ("g", "Gain"), ("f", "DahlquistFD")])
+    r_fd = simulate(make(**fd, parameters=LOOP_PARAMETERS, stop_time=2.0), **ME, solver=solver, rtol=rtol,
+                    record=["d.x", "g.y", "f.x"])
+    assert not r_fd.model_exchange.exact_jacobian and r_fd.model_exchange.jacobians == 0
+    loop_fd, alone_fd = loop_errors(r_fd)
+    assert loop_fd < 20 * rtol and alone_fd < 20 * rtol, (loop_fd, alone_fd)
+    np.testing.assert_allclose(r_fd["d.x"], r["d.x"], rtol=0, atol=20 * rtol)
+
+
+@pytest.mark.parametrize("tolerance", [1e-3, 1e-5])
+def test_tolerance_keeps_the_global_error(make, tolerance):
+    """tolerance=T: two or three solves whose result keeps the recorded variables' error (relative to their
+    largest magnitude) within T."""
+    r = simulate(make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0), **ME, tolerance=tolerance,
+                 record=["d.x", "f.x"])
+    loop, alone = loop_errors(r)
+    assert loop <= tolerance and alone <= tolerance, (loop, alone)
+    stats = r.model_exchange
+    assert stats.tolerance == tolerance and stats.solves in (2, 3) and stats.estimated_error <= tolerance
+
+
+def test_rows_on_the_grid_or_at_the_solver_steps(make):
+    """Rows at t0 + n h (never an accumulated t += h) up to the stop time; with solver_steps one row at the
+    start and one at every accepted step, each on the closed form."""
+    t0, h, t_stop = 0.25, 0.1, 1.0
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, start_time=t0, stop_time=t_stop, step_size=h)
+    r = simulate(scenario, **ME, rtol=1e-8, record=["d.x"])
+    expected = [t0 + n * h for n in range(8)] + [t_stop]
+    assert r.time.tolist() == expected
+    np.testing.assert_allclose(r["d.x"], 2 * np.exp(-2 * (r.time - t0)), rtol=1e-6)
+
+    steps = simulate(scenario, **ME, rtol=1e-8, record=["d.x"], solver_steps=True)
+    assert len(steps) == steps.model_exchange.steps + 1
+    assert steps.time[0] == t0 and steps.time[-1] == t_stop and np.all(np.diff(steps.time) > 0)
+    assert not set(steps.time[1:-1]) & set(expected)
+    np.testing.assert_allclose(steps["d.x"], 2 * np.exp(-2 * (steps.time - t0)), rtol=1e-6)
+
+
+# ---- the assembled Jacobian -----------------------------------------------------------------------------
+@contextmanager
+def system_at(scenario):
+    """A model_exchange.System of the scenario's FMUs, initialized and in continuous-time mode."""
+    with me.ModelExchangeSimulation(scenario) as sim:
+        plan = make_plan(scenario, sim.instances, sim.connections, None)
+        system = me.System(scenario, sim.instances, sim.connections, plan)
+        system.statistics = me.Statistics("BDF", 1e-6)
+        options = RunOptions(interface_type="ModelExchange")
+        me._initialize(system, binding.parameter_values(scenario, sim.instances, {}), experiment(scenario, options),
+                       1e-6)
+        yield system
+
+
+def fd_jacobian(system, t: float, xi: np.ndarray) -> np.ndarray:
+    J = np.empty((system.n, system.n))
+    for j in range(system.n):
+        e = np.zeros(system.n)
+        e[j] = 1e-6 * max(1.0, abs(xi[j]))
+        J[:, j] = (system.rhs(t, xi + e) - system.rhs(t, xi - e)) / (2 * e[j])
+    return J
+
+
+def test_jacobian_through_factors_and_a_feedthrough_chain(make):
+    """d1.x -(factor 2.5, offset 0.3)-> g1 -> g2 -(factor -0.7)-> d2.u and d2.x -(factor 1.5)-> d1.u:
+    dF/dx = [[a1, b1 1.5], [b2 (-0.7) k2 k1 2.5, a2]], in states scaled by the nominals (2 and 0.5):
+    J_ij s_j / s_i. The engine's Jacobian equals it and a finite-difference Jacobian of its right-hand
+    side."""
+    p = {"d1": {"a": -0.3, "b": 0.8, "x0": 1.2, "nominal": 2.0}, "d2": {"a": -2.0, "b": 1.7, "x0": -0.4, "nominal": 0.5},
+         "g1": {"k": 3.0}, "g2": {"k": -1.25}}
+    scenario = make([("d1", "Dahlquist"), ("g1", "Gain"), ("g2", "Gain"), ("d2", "Dahlquist")],
+                    [("d1.x", "g1.u", 2.5, 0.3), ("g1.y", "g2.u"), ("g2.y", "d2.u", -0.7), ("d2.x", "d1.u", 1.5)], p)
+    J = np.array([[-0.3, 0.8 * 1.5], [1.7 * -0.7 * -1.25 * 3.0 * 2.5, -2.0]])
+    s = np.array([2.0, 0.5])
+    with system_at(scenario) as system:
+        assert system.jacobian_plan is not None and system.n == 2
+        np.testing.assert_array_equal(system.scale, s)
+        t, xi = 0.3, np.array([0.7, -1.9])
+        assembled = system.jacobian(t, xi)
+        np.testing.assert_allclose(assembled, J * s[None, :] / s[:, None], rtol=1e-14)
+        np.testing.assert_allclose(assembled, fd_jacobian(system, t, xi), rtol=1e-8)
+        x = xi * s                                          # the right-hand side itself, through the offset
+        u2 = -0.7 * (-1.25 * (3.0 * (2.5 * x[0] + 0.3)))
+        np.testing.assert_allclose(system.rhs(t, xi) * s, [-0.3 * x[0] + 0.8 * 1.5 * x[1], -2.0 * x[1] + 1.7 * u2],
+                                   rtol=1e-14)
+
+
+# ---- events ---------------------------------------------------------------------------------------------
+def bounce_times(g: float, e: float, h0: float, t_stop: float) -> list[float]:
+    t1 = math.sqrt(2 * h0 / g)
+    times, t, n = [], t1, 0
+    while t < t_stop:
+        times.append(t)
+        n += 1
+        t += 2 * e ** n * t1
+    return times
+
+
+def ball_truth(t: np.ndarray, g: float, e: float, h0: float) -> tuple[np.ndarray, np.ndarray]:
+    """h and v at times t (after the bounce at a bounce time)."""
+    bounces = np.array(bounce_times(g, e, h0, float(np.max(t)) + 1.0))
+    n = np.searchsorted(bounces, t, side="right")          # bounces so far
+    start = np.where(n == 0, 0.0, bounces[np.maximum(n - 1, 0)])
+    v_start = np.where(n == 0, 0.0, e ** n * g * bounces[0])
+    h_start = np.where(n == 0, h0, 0.0)
+    s = t - start
+    return h_start + v_start * s - g / 2 * s ** 2, v_start - g * s
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_bouncing_ball_bounces_at_the_closed_form_times(make, solver):
+    g, e, h0, t_stop = 9.81, 0.8, 1.0, 2.0
+    truth = bounce_times(g, e, h0, t_stop)
+    assert len(truth) == 3
+    scenario = make([("b", "BouncingBall")], [], {"b": {"g": g, "e": e, "h0": h0}}, stop_time=t_stop)
+    steps = simulate(scenario, **ME, solver=solver, rtol=1e-9, record=["b.h", "b.v"], solver_steps=True)
+    v = steps["b.v"]
+    falling = np.flatnonzero((v[:-1] < 0) & (v[1:] > 0))   # the row at a bounce holds the values before it
+    np.testing.assert_allclose(steps.time[falling], truth, rtol=0, atol=3e-6)
+    np.testing.assert_allclose(steps["b.h"][falling], 0.0, atol=1e-9)
+    assert steps.model_exchange.events == len(truth), steps.model_exchange.summary()
+
+    r = simulate(scenario, **ME, solver=solver, rtol=1e-9, record=["b.h", "b.v"])
+    h, v = ball_truth(r.time, g, e, h0)
+    np.testing.assert_allclose(r["b.h"], h, rtol=0, atol=3e-5)
+    np.testing.assert_allclose(r["b.v"], v, rtol=0, atol=3e-5)
+    assert np.all(r["b.h"] >= -1e-9)                       # restarted at every bounce, never below the floor
+
+
+def test_terminate_simulation_ends_the_run_keeping_the_rows(make):
+    """v_min = 3: the first bounce leaves 0.8 * 4.43 = 3.54 m/s, the second 2.83 m/s < v_min, and the FMU
+    asks to terminate there."""
+    g, e, h0 = 9.81, 0.8, 1.0
+    t2 = bounce_times(g, e, h0, 2.0)[1]
+    scenario = make([("b", "BouncingBall")], [], {"b": {"g": g, "e": e, "h0": h0, "v_min": 3.0}}, stop_time=2.0)
+    with pytest.raises(SimulationError, match=r"ToyMEBouncingBall\.fmu: component 'b' asked to terminate") as info:
+        simulate(scenario, **ME, rtol=1e-9, record=["b.h", "b.v"])
+    assert abs(event_time(info.value) - t2) < 3e-6
+    rows = info.value.result
+    assert rows.time[-1] < t2 < rows.time[-1] + 0.01 + 1e-12
+    h, _ = ball_truth(rows.time, g, e, h0)
+    np.testing.assert_allclose(rows["b.h"], h, atol=3e-5)
+
+
+def event_time(exc: Exception) -> float:
+    return float(re.search(r"at t = ([-+0-9.e]+) s", str(exc)).group(1))
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_time_events_step_the_clock_at_their_times(make, solver):
+    """Clock.count -> Dahlquist.u (a = 0, b = 1): count steps by one at every 0.25 s (nextEventTime), and
+    x(t) = sum_n max(0, t - 0.25 n). A row at an event's time holds the values after it (as a
+    Co-Simulation step to that time gives them)."""
+    period, h = 0.25, 0.05
+    scenario = make([("c", "Clock"), ("d", "Dahlquist")], [("c.count", "d.u")],
+                    {"c": {"period": period}, "d": {"a": 0.0, "b": 1.0, "x0": 0.0}}, stop_time=1.0, step_size=h)
+    r = simulate(scenario, **ME, solver=solver, rtol=1e-8, record=["c.count", "d.x"])
+    t = r.time
+    np.testing.assert_array_equal(r["c.count"], np.floor(np.round(t / period, 9)))
+    before, after = np.flatnonzero(np.isclose(t, 0.5 - h)), np.flatnonzero(np.isclose(t, 0.5 + h))
+    assert r["c.count"][before] == 1 and r["c.count"][after] == 2
+    np.testing.assert_allclose(r["d.x"], sum(np.maximum(0.0, t - period * n) for n in range(1, 5)), atol=1e-7)
+    assert r.model_exchange.events == 4                      # 0.25, 0.5, 0.75 and the stop time
+
+
+def test_a_clock_alone_has_no_states(make):
+    r = simulate(make([("c", "Clock")], [], {"c": {"period": 0.3}}, stop_time=1.0, step_size=0.1), **ME,
+                 record=["c.count"])
+    np.testing.assert_array_equal(r["c.count"], [0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 3])
+
+
+# ---- failures -------------------------------------------------------------------------------------------
+def test_fmu_error_in_derivatives_ends_the_run_with_the_rows(make):
+    scenario = make([("f", "Faulty")], [], {"f": {"a": -1.0, "x0": 1.0, "fail_at": 0.5}})
+    with pytest.raises(SimulationError) as info:
+        simulate(scenario, **ME, record=["f.y"])
+    message = str(info.value)
+    assert "ToyMEFaulty.fmu: component 'f' failed in fmi2GetDerivatives" in message
+    assert "fmi2GetDerivatives fails at t = " in message                # the FMU's own logged message
+    assert 0.5 <= event_time(info.value) < 0.6
+    rows = info.value.result
+    assert rows is not None and 0.4 < rows.time[-1] < 0.5
+    np.testing.assert_allclose(rows["f.y"], np.exp(-rows.time), rtol=1e-5)
+
+
+def test_nan_output_ends_the_run_naming_the_variable(make):
+    scenario = make([("f", "Faulty"), ("g", "Gain")], [("f.y", "g.u")], {"f": {"nan_at": 0.3}})
+    with pytest.raises(SimulationError, match=r"f\.y = nan at t = .*ToyMEFaulty\.fmu \(component 'f'\) returned a "
+                                              r"value that is not finite") as info:
+        simulate(scenario, **ME, record=["f.y", "g.y"])
+    assert 0.3 <= event_time(info.value) < 0.4
+    rows = info.value.result
+    assert 0.2 < rows.time[-1] < 0.3 and np.all(np.isfinite(rows["g.y"]))
+
+
+def test_cli_failure_leaves_a_partial_file(make, tmp_path):
+    scenario = make([("f", "Faulty")], [], {"f": {"fail_at": 0.5}})
+    out = tmp_path / "out.csv"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))                       # this worktree's emcosim
+    run = subprocess.run([sys.executable, "-m", "emcosim.cli", "run", str(scenario.path.parent), "--interface-type",
+                          "ModelExchange", "-o", str(out), "--no-progress"], check=False, capture_output=True, text=True,
+                         cwd=tmp_path, env=env, timeout=120)
+    assert run.returncode == 1, run.stderr
+    assert "ToyMEFaulty.fmu: component 'f' failed in fmi2GetDerivatives" in run.stderr
+    partial = tmp_path / "out.partial.csv"
+    assert partial.is_file() and not out.exists()
+    lines = partial.read_text().splitlines()
+    assert lines[0].startswith(PARTIAL_MARK) and "fmi2GetDerivatives" in lines[0]
+    assert lines[1] == "time,f.y"
+    with pytest.raises(SimulationError) as info:                      # the same rows as the API keeps
+        simulate(scenario, **ME, record=["f.y"])
+    kept = read_csv(partial)
+    assert len(kept["time"]) == len(info.value.result) > 10
+    np.testing.assert_array_equal(kept["time"], info.value.result.time)
+    np.testing.assert_array_equal(kept["f.y"], info.value.result["f.y"])
+
+
+# ---- refused FMUs -----------------------------------------------------------------------------------------
+def test_interfaces_are_refused_naming_the_fmu(make, tmp_path):
+    """A Co-Simulation-only FMU (the C toys of tests/toy_fmus.py) in a Model Exchange run, and a Model-
+    Exchange-only one in a Co-Simulation run."""
+    lib = toy_fmus.compile_library(tmp_path)
+    cs = toy_fmus.build(tmp_path, lib, "static", "ToyStaticCS")
+    scenario = make([("d", "Dahlquist"), ("ctrl", cs)], [("d.x", "ctrl.u1"), ("ctrl.y", "d.u")])
+    with pytest.raises(ScenarioError, match=r"ToyStaticCS\.fmu: component 'ctrl' is a Co-Simulation-only FMU"):
+        simulate(scenario, **ME)
+    with pytest.raises(ScenarioError, match=r"ToyMEDahlquist\.fmu: component 'd' is a Model-Exchange-only FMU"):
+        simulate(scenario)

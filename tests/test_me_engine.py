@@ -34,7 +34,6 @@ from emcosim.engine.plan import make_plan
 from emcosim.engine.results import read_csv
 from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
 from emcosim.engine.ssd_writer import parameter_set_xml, system_structure_xml
-
 from tests import toy_fmus, toy_me_fmus
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emcosim.engine import binding
+from emcosim.engine import binding, ode
 from emcosim.engine import model_exchange as me
 from emcosim.engine.errors import ScenarioError, SimulationError
 from emcosim.engine.master import simulate
@@ -170,10 +170,10 @@ def system_at(scenario):
     """A model_exchange.System of the scenario's FMUs, initialized and in continuous-time mode."""
     with me.ModelExchangeSimulation(scenario) as sim:
         plan = make_plan(scenario, sim.instances, sim.connections, None)
-        system = me.System(scenario, sim.instances, sim.connections, plan)
-        system.statistics = me.Statistics("BDF", 1e-6)
+        system = ode.System(scenario, sim.instances, sim.connections, plan)
+        system.statistics = ode.Statistics("BDF", 1e-6)
         options = RunOptions(interface_type="ModelExchange")
-        me._initialize(system, binding.parameter_values(scenario, sim.instances, {}), experiment(scenario, options),
+        me.initialize(system, binding.parameter_values(scenario, sim.instances, {}), experiment(scenario, options),
                        1e-6)
         yield system
 

@@ -193,7 +193,7 @@ class ModelExchangeSimulation:
         result = Result(plan.columns, sink=sink)
         system.statistics = Statistics(name, rtol, exact_jacobian=system.jacobian_plan is not None)
         result.model_exchange = system.statistics
-        next_event = _initialize(system, parameters, planned, rtol)
+        next_event = initialize(system, parameters, planned, rtol)
         result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
                            for m in inst.messages if m.startswith("[warning]")]
         try:
@@ -215,7 +215,7 @@ def _difference(a: Result, b: Result) -> float:
     return float(np.max(rel, initial=0.0))
 
 
-def _initialize(system: System, parameters, planned: Experiment, rtol: float) -> float | None:
+def initialize(system: System, parameters, planned: Experiment, rtol: float) -> float | None:
     """Set up, set the parameters, propagate the outputs in initialization mode, leave it, settle the
     initial event, enter continuous-time mode (FMI 2.0, section 3.2.3). Returns the first time event (the
     initial event's nextEventTime) or None."""

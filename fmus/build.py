@@ -410,7 +410,7 @@ def variables_markdown(paths: dict[str, Path]) -> str:
             start = v.start if v.start is not None else ""
             extra = ""
             if v.name in deps:
-                extra = " (depends on: " + (", ".join(d.name for d in deps[v.name]) or "no input") + ")"
+                extra = " (depends on: " + (", ".join(d.name for d in deps[v.name]) or "nothing") + ")"
             parts.append(f"| {v.name} | {v.causality} | {start} | {v.unit or ''} | {v.description}{extra} |")
         parts.append("")
     return "\n".join(parts)

@@ -14,7 +14,7 @@ import math
 from typing import ClassVar
 
 from .status import DONE as _OK
-from .status import ERROR, OK
+from .status import ERROR, MODEL_EXCHANGE, OK
 
 
 class DerivativeFunctions:
@@ -53,6 +53,9 @@ class DerivativeFunctions:
             pass
         where = f"{self.model_identifier}: fmi2SetRealInputDerivatives"
         try:
+            problem = self.cs_only("fmi2SetRealInputDerivatives")      # (never cached: no fast path either)
+            if problem:
+                return ERROR, problem
             if not self.can_interpolate_inputs:
                 return ERROR, f"{where}: this FMU does not interpolate inputs (canInterpolateInputs = false)"
             staged: dict[str, dict[int, float]] = {}
@@ -90,6 +93,9 @@ class DerivativeFunctions:
             pass
         where = f"{self.model_identifier}: fmi2GetRealOutputDerivatives"
         name, order = "", 0
+        problem = self.cs_only("fmi2GetRealOutputDerivatives")          # (never cached: no fast path either)
+        if problem:
+            return ERROR, [], problem
         try:
             requests = []
             for vr, order in zip(vrs, orders):
@@ -121,6 +127,9 @@ class DerivativeFunctions:
         continuous states). A request of the same value references is checked once. Returns
         (fmi2Status, values, message)."""
         where = f"{self.model_identifier}: fmi2GetDirectionalDerivative"
+        problem = self.me_refusal("fmi2GetDirectionalDerivative") if self.interface == MODEL_EXCHANGE else ""
+        if problem:                                                   # Model Exchange: from initialization on
+            return ERROR, [], problem
         try:
             key = (tuple(unknowns), tuple(knowns))
             names = self._directional.get(key)

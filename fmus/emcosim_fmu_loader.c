@@ -125,7 +125,8 @@ typedef struct {
     PyObject *slave;                         /* the EMSlave (a strong reference), or NULL: forward all */
     PyObject *log_queue;                     /* slave.log_queue, drained after every call */
     PyObject *set_real, *get_real, *do_step; /* the slave's methods of every communication step */
-    PyObject *set_time, *set_states, *get_derivatives;   /* ... and of every right-hand side (Model Exchange) */
+    PyObject *set_time, *set_states, *get_derivatives;   /* ... and of every right-hand side (Model Exchange), */
+    PyObject *get_states, *get_indicators;    /* and of every step of a host's solver */
     VrCache set_vrs, get_vrs;
     PyObject **states;                       /* the FMU states this instance gave out (strong references) */
     size_t n_states, cap_states;
@@ -671,8 +672,9 @@ static void clear_vrs(VrCache *cache)
 /* The slave's references the loader holds: the slave, its log queue and the bound methods of the hot calls. */
 #define SLAVE_OBJECTS(instance)                                                                           \
     {&(instance)->slave, &(instance)->log_queue, &(instance)->set_real, &(instance)->get_real,               \
-     &(instance)->do_step, &(instance)->set_time, &(instance)->set_states, &(instance)->get_derivatives}
-#define N_SLAVE_OBJECTS 8
+     &(instance)->do_step, &(instance)->set_time, &(instance)->set_states, &(instance)->get_derivatives,        \
+     &(instance)->get_states, &(instance)->get_indicators}
+#define N_SLAVE_OBJECTS 10
 
 /* The EMSlave pythonfmu constructed last on this thread (fmus.pythonfmu_workarounds.take_new_slave), with
  * the methods of every communication step and right-hand side, and its log queue; none for a slave that is
@@ -703,6 +705,8 @@ static void take_slave(Instance *instance)
     instance->set_time = py.PyObject_GetAttrString(slave, "fmi2_set_time");
     instance->set_states = py.PyObject_GetAttrString(slave, "fmi2_set_continuous_states");
     instance->get_derivatives = py.PyObject_GetAttrString(slave, "fmi2_get_derivatives");
+    instance->get_states = py.PyObject_GetAttrString(slave, "fmi2_get_continuous_states");
+    instance->get_indicators = py.PyObject_GetAttrString(slave, "fmi2_get_event_indicators");
     int complete = 1;
     for (int i = 0; i < N_SLAVE_OBJECTS; i++) complete = complete && *objects[i] != NULL;
     if (!complete)
@@ -1385,7 +1389,7 @@ static fmi2Status get_vector(Instance *instance, const char *function, PyObject 
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx)
 {
     BEGIN(fmi2GetContinuousStates, unsupported(instance, "fmi2GetContinuousStates"))
-    return get_vector(instance, "fmi2GetContinuousStates", NULL, "fmi2_get_continuous_states", x, nx);
+    return get_vector(instance, "fmi2GetContinuousStates", instance->get_states, NULL, x, nx);
 }
 
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx)
@@ -1397,7 +1401,7 @@ fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni)
 {
     BEGIN(fmi2GetEventIndicators, unsupported(instance, "fmi2GetEventIndicators"))
-    return get_vector(instance, "fmi2GetEventIndicators", NULL, "fmi2_get_event_indicators", eventIndicators, ni);
+    return get_vector(instance, "fmi2GetEventIndicators", instance->get_indicators, NULL, eventIndicators, ni);
 }
 
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx)
@@ -1457,9 +1461,19 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
 }
 
 /* ---- status inquiries (doStep is never asynchronous) ---------------------------------------------------- */
+/* A Co-Simulation function called on a Model Exchange instance: fmi2Error (the slave refuses fmi2DoStep and the
+ * input and output derivatives itself). */
+#define CS_ONLY(function)                                                                                 \
+    if (instance->type == fmi2ModelExchange) {                                                            \
+        emitf(instance, fmi2Error, "%s: this instance is a Model Exchange one (fmi2Instantiate's fmuType); "  \
+              "Co-Simulation functions are refused", #function);                                          \
+        return fmi2Error;                                                                                 \
+    }
+
 fmi2Status fmi2CancelStep(fmi2Component c)
 {
     BEGIN(fmi2CancelStep, lib.fmi2CancelStep(instance->inner))
+    CS_ONLY(fmi2CancelStep)
     emitf(instance, fmi2Error, "fmi2CancelStep: no asynchronous fmi2DoStep to cancel (this FMU never returns fmi2Pending)");
     return fmi2Error;
 }
@@ -1473,12 +1487,14 @@ static fmi2Status not_available(Instance *instance, const char *function, int ki
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
 {
     BEGIN(fmi2GetStatus, lib.fmi2GetStatus(instance->inner, s, value))
+    CS_ONLY(fmi2GetStatus)
     return not_available(instance, "fmi2GetStatus", (int)s);
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {
     BEGIN(fmi2GetRealStatus, lib.fmi2GetRealStatus(instance->inner, s, value))
+    CS_ONLY(fmi2GetRealStatus)
     NULL_ARRAYS(fmi2GetRealStatus, value == NULL)
     if (s != fmi2LastSuccessfulTime) return not_available(instance, "fmi2GetRealStatus", (int)s);
     PyGILState_STATE gil = py.PyGILState_Ensure();
@@ -1493,12 +1509,14 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
 {
     BEGIN(fmi2GetIntegerStatus, lib.fmi2GetIntegerStatus(instance->inner, s, value))
+    CS_ONLY(fmi2GetIntegerStatus)
     return not_available(instance, "fmi2GetIntegerStatus", (int)s);
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {
     BEGIN(fmi2GetBooleanStatus, lib.fmi2GetBooleanStatus(instance->inner, s, value))
+    CS_ONLY(fmi2GetBooleanStatus)
     NULL_ARRAYS(fmi2GetBooleanStatus, value == NULL)
     if (s != fmi2Terminated) return not_available(instance, "fmi2GetBooleanStatus", (int)s);
     *value = fmi2False;           /* never asks to end the simulation: after fmi2Discard the state is kept */
@@ -1508,5 +1526,6 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
 {
     BEGIN(fmi2GetStringStatus, lib.fmi2GetStringStatus(instance->inner, s, value))
+    CS_ONLY(fmi2GetStringStatus)
     return not_available(instance, "fmi2GetStringStatus", (int)s);
 }

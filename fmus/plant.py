@@ -35,6 +35,13 @@ OUTPUT_INDEX = {n: i for i, n in enumerate((*STATE_NAMES, "H"))}   # output -> i
 DERIVATIVE_DEPENDENCIES = {"q": ["p"], "p": ["q", "p", "x_e"], "x_e": ["q", "x_e", "u"]}
 
 
+def initial_dependencies(knowns: list[str], parameters: list[str]) -> list[str]:
+    """What a quantity that depends on `knowns` (states, u) depends on at initialization: the initial value
+    x_0 of each state x, u, and the plant's parameters (FMI 2.0: the knowns of InitialUnknowns are the
+    inputs and the variables with initial = "exact")."""
+    return [f"{k}_0" if k in STATE_NAMES else k for k in knowns] + parameters
+
+
 class PlantSlave(EMSlave):
     plant_module: ClassVar[ModuleType]                          # components.mems or components.maglev
     initial_state: ClassVar[tuple[float, float, float]]
@@ -59,24 +66,26 @@ class PlantSlave(EMSlave):
                        f"(within [{RTOL_RANGE[0]:g}, {RTOL_RANGE[1]:g}])")
         name, unit, description = module.INPUT
         self.input(name, self.input_start, unit, description)
-        initial = [f"{n}_0" for n in STATE_NAMES]
+        parameters = list(module.PARAMETERS)
         nominal = nominal_scale(catalog.plant(self.model_identifier))
-        for i, name in enumerate(STATE_NAMES):
+        for i, name in enumerate(STATE_NAMES):                    # the states: no direct feedthrough from u
             unit, description = module.STATES[name]
-            self.output(name, unit, description, (lambda i=i: self.state()[i]), [], [f"{name}_0"],
+            self.output(name, unit, description, (lambda i=i: self.state()[i]), [name], [f"{name}_0"],
                         nominal=float(nominal[i]))
         self.output("H", "J", "stored energy H(q, p, x_e) = p^2/(2 m) + V(q) + H_e(q, x_e), eq. (open-loop elecmech)",
-                    self.energy, [], initial + list(module.PARAMETERS))
+                    self.energy, list(STATE_NAMES), initial_dependencies(list(STATE_NAMES), parameters))
         for i, name in enumerate(STATE_NAMES):
+            knowns = DERIVATIVE_DEPENDENCIES[name]
             self.state_derivative(name, RATE_UNITS[module.STATES[name][0]], (lambda i=i: self.rates()[i]),
-                                  DERIVATIVE_DEPENDENCIES[name], None)
+                                  knowns, initial_dependencies(knowns, parameters))
         self.plant: EMPlant | None = None
         self.stepper: PlantStepper | None = None
         self.eta: tuple[float, float, float] | None = None
         self._H: float | None = None
         self.u_end: tuple[float, float] | None = None          # (u, u') at the end of the last step
         self._rates: tuple | None = None                        # (key, time derivatives) of the last request
-        self._f: tuple | None = None                            # (key, f(eta, u)) of the last Model Exchange request
+        self._f: tuple | None = None                            # (key, f(eta, u)) of the last request of der(x)
+        self._dx: tuple | None = None                           # (eta, u, [f(eta, u)]) of the last fmi2GetDerivatives
 
     # ---- outputs ------------------------------------------------------------------------------
     def initial(self) -> tuple[float, float, float]:
@@ -151,7 +160,17 @@ class PlantSlave(EMSlave):
         self._H = None
 
     def state_derivatives(self) -> list[float]:
-        return list(self.rates())
+        """[q', p', x_e'] = f(eta, u) of eq. (open-loop elecmech), once per state and input: the host's solver
+        asks for them after every fmi2SetContinuousStates, which makes a new eta (the cache's key is its
+        identity and u)."""
+        eta, u, cached = self.eta, self.values["u"], self._dx
+        if cached is not None and cached[0] is eta and cached[1] == u:
+            return cached[2]
+        if self.stepper is None or eta is None:                 # (Model Exchange asks after initialization only)
+            return list(self.rates())
+        dx = list(self.stepper.model.f(eta[0], eta[1], eta[2], u))
+        self._dx = (eta, u, dx)
+        return dx
 
     def event_indicators(self) -> list[float]:
         plant = self.plant if self.plant is not None else self.make_plant()

@@ -3,7 +3,8 @@ Exchange: outputs that are functions of time, no states).
 
 Integer parameter kind selects the generator (0 constant, 1 sinusoid, 2 smooth_step); every parameter
 of the three generators is a parameter of the FMU (names from their PARAMETERS). The outputs are the
-reference jet (q*, q*', q*'', q*''') at the current communication point; they depend on no input.
+reference jet (q*, q*', q*'', q*''') at the current communication point (Model Exchange: at the time of
+fmi2SetTime); they depend on no input, only on the independent variable `time`.
 Output derivatives of order k (fmi2GetRealOutputDerivatives, k <= 3) are analytic: q_star of order k is
 q*^(k), q_star_dddot of order k is q*^(3+k) (components.references.Reference.derivatives).
 """
@@ -28,8 +29,9 @@ class ReferenceSlave(EMSlave):
             for p in references.KINDS[name].PARAMETERS.values():
                 self.parameter(p.name, p.default, p.unit, f"{p.description} (kind {code}, {name})")
         all_parameters = ["kind"] + [p for name in KIND_CODES.values() for p in references.KINDS[name].PARAMETERS]
-        for i, (name, unit, description) in enumerate(OUTPUTS):
-            self.output(name, unit, description, (lambda i=i: self.jet()[i]), [], all_parameters)
+        for i, (name, unit, description) in enumerate(OUTPUTS):     # functions of time alone
+            self.output(name, unit, description, (lambda i=i: self.jet()[i]), ["time"], all_parameters + ["time"])
+        self.independent_time()
         self.reference = None
         self._derivatives_time = None
         self._derivatives: tuple[float, ...] = ()

@@ -84,6 +84,11 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         self._add(Variable(name, "output", unit, description, None, False, getter, list(dependencies),
                            None if initial_deps is None else list(initial_deps), nominal=nominal))
 
+    def independent_time(self) -> None:
+        """The independent variable `time` [s] (the current time: fmi2SetupExperiment, fmi2DoStep, fmi2SetTime),
+        for an FMU whose outputs depend on time: FMI 2.0 lists it among the knowns of their dependencies."""
+        self._add(Variable("time", "independent", "s", "simulation time", None, False, lambda: self.time))
+
     def state_derivative(self, state: str, unit: str, getter: Callable[[], float], dependencies: list[str],
                          initial_deps: list[str] | None) -> None:
         """der(state): the time derivative of a continuous state (Model Exchange), a local variable; the
@@ -235,6 +240,10 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
     def fmi2_terminate(self) -> tuple[int, str]:
         if self.terminated:
             return ERROR, f"{self.model_identifier}: fmi2Terminate called twice"
+        if self.interface == MODEL_EXCHANGE:                          # event or continuous-time mode only
+            problem = self.me_refusal("fmi2Terminate")
+            if problem:
+                return ERROR, problem
         self.terminated = True
         return _OK
 
@@ -244,7 +253,7 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         that is not finite and positive."""
         where = f"{self.model_identifier}: fmi2DoStep"
         if self.interface != CO_SIMULATION:
-            return ERROR, f"{where}: this instance is a Model Exchange one (fmi2Instantiate's fmuType)"
+            return ERROR, self.cs_only("fmi2DoStep")
         if self.terminated:
             return ERROR, f"{where} after fmi2Terminate"
         if not self.initialized:
@@ -290,9 +299,9 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
             var = self._variable(vr)
             if var is None:
                 return ERROR, f"{where}: valueReference {vr} is not a variable of this FMU"
-            if var.causality in ("output", "local"):
-                what = "an output" if var.causality == "output" else "calculated"
-                return ERROR, f"{where}: {var.name} is {what}; it cannot be set"
+            if var.causality in ("output", "local", "independent"):
+                kind = {"output": "an output", "local": "calculated", "independent": "the independent variable"}
+                return ERROR, f"{where}: {var.name} is {kind[var.causality]}; it cannot be set"
             if var.integer != integer:
                 return ERROR, f"{where}: {var.name} is {'an Integer' if var.integer else 'a Real'} variable"
             if var.causality == "parameter" and self.initialized:
@@ -309,7 +318,9 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
     def fmi2_get_real(self, vrs: list[int]) -> tuple[int, list[float], str]:
         """The values; fmi2Error naming the variable for a value reference that is not a Real variable,
         a value that cannot be computed or a value that is not finite (the FMUs never return a
-        non-finite output with fmi2OK)."""
+        non-finite output with fmi2OK). Model Exchange: from initialization mode on."""
+        if self.me_mode is None and self.interface == MODEL_EXCHANGE and not self.entered and not self.terminated:
+            return ERROR, [math.nan] * len(vrs), self.me_refusal("fmi2GetReal")
         if self._real_vrs.issuperset(vrs):                            # fast path
             getters = self._getters
             try:
@@ -323,6 +334,8 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         return self._get_checked(vrs, False)
 
     def fmi2_get_integer(self, vrs: list[int]) -> tuple[int, list[int], str]:
+        if self.me_mode is None and self.interface == MODEL_EXCHANGE and not self.entered and not self.terminated:
+            return ERROR, [0] * len(vrs), self.me_refusal("fmi2GetInteger")
         return self._get_checked(vrs, True)
 
     def _get_checked(self, vrs: list[int], integer: bool) -> tuple[int, list, str]:

@@ -1,6 +1,7 @@
 """FMU state of an emcosim FMU (fmi2GetFMUstate, fmi2SetFMUstate, fmi2FreeFMUstate and serialization):
 a snapshot of every variable plus what an adapter keeps outside them (`save_internal` /
-`restore_internal`), so a master can roll a step back exactly. A state is checked before it is applied
+`restore_internal`), so a master can roll a step back exactly. A Model Exchange instance's state also holds
+its mode (event or continuous-time: model_exchange.py), as the FMU SDK's and the Reference FMUs' do. A state is checked before it is applied
 (this FMU's, this build's, every variable with a number) and applied all or nothing; serialized states
 carry a header, a format version and a sha256 checksum that deserialization checks (it catches
 accidents, a cut or changed file, not intent).
@@ -12,13 +13,14 @@ import json
 import math
 
 from . import BUILD
+from .model_exchange import CONTINUOUS, EVENT
 from .status import DONE as _OK
-from .status import ERROR, OK
+from .status import ERROR, MODEL_EXCHANGE, OK
 
 # serialized FMU state: header, format version (1 byte), sha256 of the payload (32 bytes), JSON payload
 STATE_HEADER = b"emcosim FMU state\n"
 STATE_FORMAT = 1
-STATE_KEYS = {"model", "build", "values", "time", "initialized", "input_derivatives", "internal"}
+STATE_KEYS = {"model", "build", "values", "time", "initialized", "me_mode", "input_derivatives", "internal"}
 
 
 class StateFunctions:
@@ -88,7 +90,7 @@ class StateFunctions:
 
     def _snapshot(self) -> dict:
         return {"model": self.model_identifier, "build": BUILD, "values": dict(self.values), "time": self.time,
-                "initialized": self.initialized,
+                "initialized": self.initialized, "me_mode": self.me_mode,
                 "input_derivatives": {k: dict(v) for k, v in self.input_derivatives.items()},
                 "internal": self.save_internal()}
 
@@ -110,6 +112,8 @@ class StateFunctions:
             return f"its time {state['time']!r} is not a finite number"
         if not isinstance(state["initialized"], bool) or not isinstance(state["internal"], dict):
             return "it is incomplete"
+        if state["me_mode"] not in (None, EVENT, CONTINUOUS):
+            return f"its Model Exchange mode {state['me_mode']!r} is not one"
         derivatives = state["input_derivatives"]
         inputs = set(self._real_inputs.values())
         if not isinstance(derivatives, dict) or not all(
@@ -127,6 +131,8 @@ class StateFunctions:
         if state["initialized"] and (changed or not self.initialized):
             self.initialize()
         self.initialized = state["initialized"]
+        if self.interface == MODEL_EXCHANGE:       # (a Co-Simulation instance's state: event mode once initialized)
+            self.me_mode = state["me_mode"] or (EVENT if self.initialized else None)
         self.input_derivatives = {name: {int(order): float(value) for order, value in orders.items()}
                                   for name, orders in state["input_derivatives"].items()}
         self.inputs_changed()                      # drop what depended on the inputs, then restore the state

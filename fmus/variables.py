@@ -43,10 +43,10 @@ RATE_UNITS = {"m": "m/s", "kg.m/s": "N", "C": "C/s", "Wb": "Wb/s", "J": "J/s"}
 class Variable:
     """One FMI variable of an emcosim FMU.
 
-    causality      "parameter" (fixed), "input", "output" (continuous, calculated) or "local" (a state
-                   derivative der(x): its `derivative_of` names the state x)
-    dependencies   outputs and derivatives: names of the inputs (and, for a derivative, the states) it
-                   depends on in Step Mode / Continuous-Time Mode
+    causality      "parameter" (fixed), "input", "output" (continuous, calculated), "local" (a state
+                   derivative der(x): its `derivative_of` names the state x) or "independent" (time)
+    dependencies   outputs and derivatives: names of the knowns it depends on at a communication point /
+                   in Continuous-Time Mode (FMI 2.0: inputs, continuous states, the independent variable)
     initial_deps   outputs and derivatives: names of the knowns (inputs, parameters) it depends on at
                    initialization (None: all of them)
     """

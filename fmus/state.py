@@ -1,8 +1,9 @@
 """FMU state of an emcosim FMU (fmi2GetFMUstate, fmi2SetFMUstate, fmi2FreeFMUstate and serialization):
 a snapshot of every variable plus what an adapter keeps outside them (`save_internal` /
-`restore_internal`), so a master can roll a step back exactly. A Model Exchange instance's state also holds
-its mode (event or continuous-time: model_exchange.py), as the FMU SDK's and the Reference FMUs' do. A state is checked before it is applied
-(this FMU's, this build's, every variable with a number) and applied all or nothing; serialized states
+`restore_internal`), so a master can roll a step back exactly. A Model Exchange instance's state also
+holds its mode (event or continuous-time: model_exchange.py), as the FMU SDK's and the Reference FMUs' do.
+A state is checked before it is applied (this FMU's, this build's, every variable with a number) and
+applied all or nothing; serialized states
 carry a header, a format version and a sha256 checksum that deserialization checks (it catches
 accidents, a cut or changed file, not intent).
 """

@@ -66,7 +66,8 @@ def test_capabilities_and_structure(fmus):
         for unknown in md.outputs:
             if identifier in PLANTS or identifier == "Reference":
                 # the knowns are the inputs, the states and time (FMI 2.0): states and sources feed nothing through
-                assert not set(unknown.dependencies) & set(inputs), f"{identifier}.{unknown.variable.name} must not depend on inputs"
+                assert not set(unknown.dependencies) & set(inputs), \
+                    f"{identifier}.{unknown.variable.name} must not depend on inputs"
             else:
                 assert unknown.dependencies == inputs
         derivatives = {u.variable.name for u in md.derivatives}

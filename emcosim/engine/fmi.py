@@ -35,7 +35,9 @@ def instantiate(model_description, unzipdir: str, name: str, model_exchange: boo
     log(status, text), and the ctypes callbacks (keep them alive as long as the instance). Raises fmpy's
     exception if fmi2Instantiate returns NULL."""
     def logger(component, instance_name, status, category, message):
-        log(status, message.decode("utf-8", "replace") if message else "")
+        # FMI 2.0 passes a printf format; the ctypes callback gets no variadic arguments, so a message is taken
+        # as formatted text whose "%%" stand for "%" (what FMUs that log plain text, like ours, send)
+        log(status, message.decode("utf-8", "replace").replace("%%", "%") if message else "")
 
     callbacks = fmi2CallbackFunctions()
     callbacks.logger = fmi2CallbackLoggerTYPE(logger)

@@ -139,10 +139,13 @@ class ModelExchangeSimulation:
                                                options.solver_steps, sink)
         if timing is not None:
             statistics = result.model_exchange
-            timing.update(total=time.perf_counter() - tic,
-                          fmu=sum(s.fmu_time + sum(t.elapsed for t in transfers(s.plan)) for s in systems),
-                          steps=statistics.steps, fmus=len(self.instances), rhs=statistics.rhs,
-                          jacobians=statistics.jacobians)
+            total = time.perf_counter() - tic
+            fmu = sum(s.fmu_time + sum(t.elapsed for t in transfers(s.plan)) for s in systems)
+            engine = sum(s.engine_time for s in systems)
+            # fmu: inside the FMUs' calls; engine: this engine's Python around them (right-hand sides,
+            # Jacobians, indicators, rows); solver: the rest (scipy's integrator, initialization, resets)
+            timing.update(total=total, fmu=fmu, engine=engine - fmu, solver=total - engine, steps=statistics.steps,
+                          fmus=len(self.instances), rhs=statistics.rhs, jacobians=statistics.jacobians)
         return result
 
     def _controlled(self, parameters, planned: Experiment, record, name: str, tolerance: float, progress,
@@ -345,6 +348,15 @@ def _record(system: System, result: Result, dense, grid: list[float], k: int, t_
     """The rows up to t_end: the grid points (from the dense output), or the step's end (solver_steps).
     before_event: an event follows at t_end, so a grid point at t_end waits for the values after it (as a
     Co-Simulation step to t_end gives them, and fmpy records them)."""
+    tic = time.perf_counter()
+    try:
+        return _rows(system, result, dense, grid, k, t_end, solver_steps, x_end, before_event)
+    finally:
+        system.engine_time += time.perf_counter() - tic
+
+
+def _rows(system: System, result: Result, dense, grid: list[float], k: int, t_end: float, solver_steps: bool,
+          x_end: np.ndarray, before_event: bool) -> int:
     if solver_steps:
         system.set_point(t_end, x_end, record=True)
         result.append(t_end, system.row())

@@ -107,7 +107,8 @@ class System:
         self.jacobian_plan = _JacobianPlan(self) if all(
             u.inst.model_description.modelExchange.providesDirectionalDerivative for u in knowing) else None
         self.statistics: Statistics | None = None
-        self.fmu_time = 0.0
+        self.fmu_time = 0.0                          # inside the FMUs' raw calls (the transfers time theirs)
+        self.engine_time = 0.0                       # inside this object's methods the solver and the run call
         self._t: float | None = None
         self.discarded = ""                          # the last fmi2Discard of fmi2GetDerivatives
 
@@ -137,7 +138,7 @@ class System:
         self.resolve(t, record)
 
     def resolve(self, t: float, record: bool = False) -> None:
-        tic = time.perf_counter()
+        """The connected values at the current point (plan.resolve_values; its transfers time their calls)."""
         try:
             resolve_values(self.plan, self.slots, record)
         except FMICallException as exc:
@@ -146,13 +147,18 @@ class System:
                                   f"t = {t:.9g} s{last_message(inst)}") from None
         except NonFinite as exc:
             raise SimulationError(exc.message(t)) from None
-        finally:
-            self.fmu_time += time.perf_counter() - tic
 
     # ---- the ODE -------------------------------------------------------------------------------------
     def rhs(self, t: float, xi: np.ndarray) -> np.ndarray:
         """F(t, x) in scaled states: NaN where an FMU discards the evaluation (fmi2Discard: the solver then
         takes a smaller step)."""
+        tic = time.perf_counter()
+        try:
+            return self._rhs(t, xi)
+        finally:
+            self.engine_time += time.perf_counter() - tic
+
+    def _rhs(self, t: float, xi: np.ndarray) -> np.ndarray:
         self.set_point(t, xi)
         out = np.empty(self.n)
         for unit in self.with_states:
@@ -165,6 +171,13 @@ class System:
         return out / self.scale
 
     def jacobian(self, t: float, xi: np.ndarray) -> np.ndarray:
+        tic = time.perf_counter()
+        try:
+            return self._jacobian(t, xi)
+        finally:
+            self.engine_time += time.perf_counter() - tic
+
+    def _jacobian(self, t: float, xi: np.ndarray) -> np.ndarray:
         self.set_point(t, xi)
         self.statistics.jacobians += 1
         tic = time.perf_counter()
@@ -173,6 +186,13 @@ class System:
         return J * self.scale[None, :] / self.scale[:, None]
 
     def indicators(self, t: float, xi: np.ndarray) -> np.ndarray:
+        tic = time.perf_counter()
+        try:
+            return self._indicators(t, xi)
+        finally:
+            self.engine_time += time.perf_counter() - tic
+
+    def _indicators(self, t: float, xi: np.ndarray) -> np.ndarray:
         self.set_point(t, xi)
         out: list[float] = []
         for unit in self.with_indicators:
@@ -233,6 +253,13 @@ class System:
 
     def completed_step(self, t: float, xi: np.ndarray) -> bool:
         """fmi2CompletedIntegratorStep of the FMUs that need it: True if one asks for event mode."""
+        tic = time.perf_counter()
+        try:
+            return self._completed_step(t, xi)
+        finally:
+            self.engine_time += time.perf_counter() - tic
+
+    def _completed_step(self, t: float, xi: np.ndarray) -> bool:
         if not self.step_reporters:
             return False
         self.set_point(t, xi)

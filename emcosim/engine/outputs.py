@@ -279,7 +279,7 @@ class OutputFolder:
     (`abandon`) it becomes `NAME.partial` with PARTIAL.txt saying why, and the destination is left as
     it was. The destination is checked first: its parent must be writable, and an existing
     destination must be a writable folder that an earlier run made (it holds `.emcosim` or one of
-    `recognize`) or be empty, so that a mistyped --out never deletes someone's files."""
+    `recognize`) or be empty, so that a mistyped destination never deletes someone's files."""
 
     MARKER = ".emcosim"
 

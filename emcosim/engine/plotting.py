@@ -2,7 +2,7 @@
 the units shown on the axis; `draw` renders a spec with matplotlib, `save` writes PNG/SVG.
 
 Keeping the plotted numbers and labels in a spec lets tests open exactly what a figure shows. The
-engine's own figure (`variables_figure`, used by `emcosim run --plot` for any scenario) knows no
+engine's own figure (`variables_figure`, used by the command line's plots of any scenario) knows no
 physics: one axis per recorded variable, labelled with the unit and description of the FMU's
 modelDescription, scaled to an SI prefix (m -> um, s -> ms) where that reads better.
 Colours: the Okabe-Ito palette (distinguishable with the common colour-vision deficiencies), with

@@ -7,7 +7,7 @@ end. A parameter sweep runs the same scenario hundreds of times in the same work
 `Session` keeps the unpacked FMUs and their instances and, between runs, only calls fmi2Reset, which
 returns every FMU to its freshly instantiated state (pythonfmu 0.7.0 re-creates the Python slave
 object). Each run goes through the master's own initialization and stepping code, so a run in a
-session gives the same numbers as `simulate` (and `emcosim run`) with the same settings; the sweep
+session gives the same numbers as `simulate` with the same settings; the sweep
 tests check this bit for bit.
 """
 from __future__ import annotations

@@ -64,7 +64,7 @@ class Connector:
 
 @dataclass
 class Parameter:
-    """A parameter value of an .ssv file (or of `--set`)."""
+    """A parameter value of an .ssv file (or a start value a caller gives)."""
 
     name: str
     type: str

@@ -293,8 +293,7 @@ def cmd_run(args) -> int:
     from dataclasses import asdict
 
     from .engine.master import simulate
-    from .engine.outputs import ResultFile, check_destination
-    from .engine.results import Result
+    from .engine.outputs import ResultFile
     from .progress import ProgressBar
 
     options = run_options(args)                   # every setting checked before anything is read
@@ -306,9 +305,10 @@ def cmd_run(args) -> int:
             raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
         start_values[name.strip()] = value.strip()
     record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else default_record(scenario)
+    output = Path(args.output or f"{scenario.name}.csv")
     if args.plot:
-        check_destination(Path(args.plot))
-    sink = ResultFile(args.output or f"{scenario.name}.csv", what=scenario.name)   # checked before the run
+        check_plot(Path(args.plot), output)
+    sink = ResultFile(output, what=scenario.name)   # checked before the run
     for note in sink.notes:
         print(f"emcosim: note: {note}", file=sys.stderr)
     bar = None if args.no_progress else ProgressBar(scenario.name)
@@ -324,13 +324,14 @@ def cmd_run(args) -> int:
             bar.close()
     for warning in getattr(result, "warnings", []):
         print(f"emcosim: warning: {warning}", file=sys.stderr)
-    if sink.final is not None and args.plot:
-        plot_run(scenario, Result.from_csv(sink.final), args.plot, start_values)
     if failure is not None:
-        if sink.final is not None:
-            failure.add_note(f"{sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}")
-        raise failure
-    print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {args.plot}" if args.plot else ""))
+        _raise_failure(failure, sink, scenario, args.plot, start_values)
+    try:
+        figure = plot_run(scenario, sink.final, args.plot, start_values) if args.plot else None
+    except ScenarioError as exc:
+        exc.add_note(f"the run's {sink.rows} rows are in {sink.final}")
+        raise
+    print(f"{scenario.name}: {sink.rows} rows to {sink.final}" + (f", plot {figure}" if figure else ""))
     if getattr(result, "step_control", None) is not None:
         print(f"{scenario.name}: {result.step_control.summary()}")
     if getattr(result, "implicit", None) is not None:
@@ -340,19 +341,88 @@ def cmd_run(args) -> int:
     return 0
 
 
-def plot_run(scenario, result, path: str, start_values: dict) -> None:
-    """The paper's figure of a run for this suite's scenarios (emcosim.paper.run_figure), else the
-    engine's figure of the recorded variables in their units."""
+def _raise_failure(failure: SimulationError, sink, scenario, plot: str | None, start_values: dict) -> None:
+    """A failed run: its rows and (with --plot) their figure are kept as partial files; the error
+    names them."""
+    if sink.final is None:
+        raise failure
+    failure.add_note(f"{sink.rows} rows up to t = {sink.last_time:.9g} s saved to {sink.final}")
+    if plot:
+        try:
+            failure.add_note(f"plot {plot_run(scenario, sink.final, plot, start_values, partial=True)}")
+        except ScenarioError as exc:               # the run's error comes first
+            failure.add_note(f"no plot: {error_line(exc)}")
+    raise failure
+
+
+def check_plot(path: Path, results: Path) -> None:
+    """--plot: an image format matplotlib writes, a file that can be written, not the results file
+    (checked before the run)."""
+    fmt = path.suffix[1:].lower()
+    if not fmt:
+        raise ScenarioError(f"--plot {path}: no image format: give a name ending in .png, .svg or .pdf")
+    formats = image_formats()
+    if fmt not in formats:
+        raise ScenarioError(f"--plot {path}: cannot draw a .{fmt} file (formats: {', '.join(sorted(formats))})")
+    if path.absolute() == results.absolute():
+        raise ScenarioError(f"--plot {path}: is the results file too; give another name")
+    from .engine.outputs import check_destination
+
+    check_destination(path)
+
+
+def image_formats() -> set[str]:
+    """The file suffixes matplotlib can draw to (png, svg, pdf, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return set(FigureCanvasBase.get_supported_filetypes())
+
+
+def plot_run(scenario, rows: Path, path: str, start_values: dict, partial: bool = False) -> Path:
+    """Draw the results file `rows`: the paper's figure of a run for this suite's scenarios
+    (emcosim.paper.run_figure), else the engine's figure of the recorded variables in their units.
+    Written as results files are (engine.outputs.write_file): in place of `path`, or, for a failed
+    run (`partial`), to the first free NAME.partial[-N].SUFFIX, marked on the figure and in the
+    file's metadata with the partial file's comment. Returns the file written."""
+    import matplotlib.pyplot as plt
+
     from .engine import plotting
+    from .engine.outputs import write_file
+    from .engine.results import Result, partial_note
     from .paper.run_figure import run_figure
 
+    result = Result.from_csv(rows)
     spec = run_figure(scenario, result, start_values)
     if spec is None:
         spec = plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
+    fig = plotting.draw(spec)
+    fmt = Path(path).suffix[1:].lower()
+    metadata = None
+    if partial:
+        note = partial_note(rows) or "emcosim: PARTIAL result"
+        _mark_partial(fig, note)
+        key = {"png": "Description", "svg": "Description", "pdf": "Subject"}.get(fmt)
+        metadata = {key: note} if key else None
     try:
-        plotting.save(plotting.draw(spec), path)
-    except ValueError as exc:                       # e.g. an image format matplotlib does not know
-        raise ScenarioError(f"--plot {path}: {exc}") from None
+        return write_file(Path(path), lambda f: fig.savefig(f, format=fmt, dpi=110, metadata=metadata),
+                          partial=partial)
+    except (ValueError, OSError) as exc:            # e.g. a full disk
+        raise ScenarioError(f"--plot {path}: {getattr(exc, 'strerror', None) or exc}") from None
+    finally:
+        plt.close(fig)
+
+
+def _mark_partial(fig, note: str) -> None:
+    """A red line under the figure's axes (room made for it): how far the run got, then the partial
+    file's comment, cut to one line."""
+    height = fig.get_figheight()
+    engine = fig.get_layout_engine()
+    if engine is not None and hasattr(engine, "set"):
+        engine.set(rect=(0, 0.3 / height, 1, 1 - 0.3 / height))       # 0.3 inch below the axes
+    upto = re.search(r"\d+ rows up to t = \S+ s", note)
+    line = (f"PARTIAL: {upto.group(0)}. " if upto else "") + note
+    line = line if len(line) <= 160 else line[:157] + "..."
+    fig.text(0.005, 0.08 / height, line, color="red", fontsize=7, ha="left", va="bottom")
 
 
 def cmd_export(args) -> int:
@@ -452,7 +522,7 @@ def cmd_sweep(args) -> int:
     scenario = _read(args.scenario, args.fmu_dir, args)
     tls = security(args.tls_ca_file, args.tls_cert, args.tls_key)
     out = Path(args.out or f"sweep_{scenario.name}")
-    folder = OutputFolder(out, recognize=("sweep.json", "sweep.csv"))     # checked before the sweep starts
+    folder = OutputFolder(out)                    # checked before the sweep starts
     for note in folder.notes:
         print(f"emcosim: note: {note}", file=sys.stderr)
     stream = RowStream(folder.path / "sweep.csv", [n for n, _ in grid] + [n for n, _, _ in samples])

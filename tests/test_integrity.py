@@ -145,17 +145,23 @@ def test_streamed_result_keeps_only_the_last_row(loop, tmp_path):
 
 @pytest.mark.parametrize("folder", ["", "old.incomplete-1 [x]"])
 def test_file_of_a_killed_run_is_marked_partial(tmp_path, folder):
-    """NAME.incomplete-PID.csv whose lock is free (its process died) gets the partial comment; a torn
-    last line (a write cut by kill -9) is left out. Also in a folder whose name holds "incomplete-" and
-    glob's special characters."""
-    from emcosim.engine.outputs import mark_orphans
+    """The file of a run that was killed (its marker line still there, its lock free: the kernel
+    releases a dead process's locks) gets the partial comment; a torn last line (a write cut by
+    kill -9) is left out. Also in a folder whose name holds "incomplete-" and glob's special characters."""
+    from emcosim.engine.outputs import ResultFile, mark_orphans
 
     where = tmp_path / folder
     where.mkdir(exist_ok=True)
-    orphan = where / "r.incomplete-999999.csv"
-    orphan.write_text("time,a\n0.0,1.0\n0.5,2.0\n1.0,3")
+    sink = ResultFile(where / "r.csv")
+    sink.start(["a"])
+    for t, a in ((0.0, 1.0), (0.5, 2.0)):
+        sink.write([t, a])
+    sink.flush()
+    os.pwrite(sink.fd, b"1.0,3", sink.written)                           # torn: cut by the kill
+    os.close(sink.fd)                                                    # the process dies
+    orphan = sink.temp
     notes = mark_orphans(where / "r.csv")
-    assert len(notes) == 1 and "999999" in notes[0]
+    assert len(notes) == 1 and f"pid {os.getpid()}" in notes[0]
     assert "ended without a clean exit" in partial_note(orphan) and "2 rows up to t = 0.5 s" in partial_note(orphan)
     assert read_csv(orphan)["a"].tolist() == [1.0, 2.0]
     assert mark_orphans(where / "r.csv") == []                           # marked once
@@ -179,12 +185,13 @@ def test_reproduce_refuses_a_read_only_out_before_any_scenario(fmu_dir, tmp_path
 
 
 def test_failed_reproduce_leaves_the_old_results_alone(fmu_dir, tmp_path):
+    from emcosim.engine.outputs import OutputFolder
     from emcosim.paper.reproduce import reproduce
 
     out = tmp_path / "results"
-    out.mkdir()
-    (out / "runs.json").write_text("{}")                     # an earlier reproduce's folder
-    (out / "fig1_mems_regulation.png").write_bytes(b"old figure")
+    with OutputFolder(out) as earlier:                       # an earlier reproduce's folder
+        (earlier.path / "runs.json").write_text("{}")
+        (earlier.path / "fig1_mems_regulation.png").write_bytes(b"old figure")
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     no_maglev = tmp_path / "fmus"
     shutil.copytree(fmu_dir, no_maglev)

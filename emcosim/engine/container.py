@@ -17,7 +17,6 @@ stepping a feedthrough controller would act one step late, as in libcosim.
 from __future__ import annotations
 
 import shutil
-import tempfile
 import uuid
 from pathlib import Path
 from typing import Any
@@ -28,13 +27,22 @@ from fmpy.container_fmu.cli import create_container_fmu
 from fmpy.container_fmu.config import Component, Connection
 from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
 
+from . import tempdirs
 from .binding import check_connections, load, parameter_values
 from .errors import OptionError, ScenarioError
+from .outputs import check_destination, write_file
 from .ssd import Scenario
 
 
 def export_container(scenario: Scenario, filename: Path, step_size: float | None = None) -> Path:
-    """Write `scenario` as a container FMU to `filename` and return it."""
+    """Write `scenario` as a container FMU to `filename` and return it. The destination is checked
+    first (its folder is created if missing; a link or a read-only file is refused)."""
+    filename = Path(filename).absolute()
+    try:
+        filename.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ScenarioError(f"{filename}: cannot create folder {filename.parent}: {exc.strerror or exc}") from None
+    check_destination(filename)
     h = scenario.hold_step(step_size, "the container FMU")
     if h is None or not h > 0:
         raise OptionError("{where}: the container needs a positive fixed step (give {step_size})", "step_size",
@@ -94,17 +102,25 @@ def export_container(scenario: Scenario, filename: Path, step_size: float | None
         conns.append(Connection(components[c.start_element], [_typed(src)], components[c.end_element], [_typed(dst)]))
     config = Configuration(parallelDoStep=False, modelDescription=md, components=list(components.values()),
                            connections=conns, variableMappings=mappings)
-    filename = Path(filename).resolve()
-    filename.parent.mkdir(parents=True, exist_ok=True)
-    if filename.exists():
-        filename.unlink()
-    workdir = Path(tempfile.mkdtemp(prefix="emcosim-container-"))
+    return _write_container(config, filename)
+
+
+def _write_container(config: Configuration, filename: Path) -> Path:
+    """Build the container in a temporary folder of this run (emcosim-PID-export-...: removed at the
+    next start if the export is killed), check it, then write it beside `filename` and rename it into
+    place: an old FMU there stays until the new one is complete, on any file system."""
+    workdir = tempdirs.make("export")
     try:
+        built = workdir / "container.fmu"
         (workdir / "unzip").mkdir()
-        create_container_fmu(config, workdir / "unzip", filename)     # it deletes and recreates that folder
+        create_container_fmu(config, workdir / "unzip", built)     # it deletes and recreates that folder
+        read_model_description(str(built))                          # fails loudly if unreadable
+        with open(built, "rb") as source:
+            write_file(filename, lambda f: shutil.copyfileobj(source, f, 1 << 20))
+    except OSError as exc:
+        raise ScenarioError(f"{filename}: cannot write the container FMU: {exc.strerror or exc}") from None
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    read_model_description(str(filename))                               # fails loudly if unreadable
     return filename
 
 

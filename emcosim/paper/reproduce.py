@@ -345,7 +345,7 @@ def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, o
     into OUT.partial; an interruption keeps the finished scenarios' rows there (NAME.csv). out_dir
     itself is then left as it was."""
     out = sys.stderr if out is None else out
-    folder = OutputFolder(out_dir, recognize=("runs.json", "claims.md"))
+    folder = OutputFolder(out_dir)
     for note in folder.notes:
         print(f"note: {note}", file=out)
     finished: dict = {}

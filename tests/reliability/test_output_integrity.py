@@ -112,7 +112,8 @@ def test_kill_9_keeps_the_flushed_rows_and_the_next_start_cleans_up(toys, tmp_pa
     assert later.returncode == 0, later.stderr
     assert f"pid {proc.pid}) that was killed; marked partial" in later.stderr, later.stderr
     note = partial_note(incomplete)
-    assert f"(pid {proc.pid}) ended without a clean exit" in note and f"{len(rows)} rows" in note, note
+    assert f"(pid {proc.pid}, started " in note and "ended without a clean exit" in note, note
+    assert f"{len(rows)} rows" in note, note
     assert len(complete_rows(incomplete)) == len(rows)
     assert not [d for d in tmp.iterdir() if d.name.startswith(f"emcosim-{proc.pid}-")]   # cleaned at this start
     tally.add("output_integrity", "kill -9", "clean_error")
@@ -195,3 +196,28 @@ def test_long_horizon_streams_to_disk_with_flat_memory(toys, tmp_path, tally):
     tally.add("output_integrity", "stop time 1e6 (streamed)", "correct")
     tally.measurements["output_integrity"]["long_run"] = {"rss_growth_kib": rss1 - rss0, "rows": rows,
                                                           "bytes_written": size1 - size0}
+
+
+def test_killed_export_keeps_the_old_fmu_and_the_next_start_cleans_up(fmu_dir, tmp_path, tally):
+    """Issue 26, item 2: kill -9 while `export` builds the container. The old loop.fmu is still there
+    (it used to be deleted first), nothing is left beside it, and the next `emcosim` command removes
+    the export's temporary folder (its name used to be one that nothing removed)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {"TMPDIR": str(tmp)}
+    out = tmp_path / "dest" / "loop.fmu"
+    out.parent.mkdir()
+    out.write_bytes(b"the old FMU")
+    proc = popen(["export", "mems_regulation_Dd0", "--fmu-dir", str(fmu_dir), "-o", str(out)], env=env)
+    deadline = time.monotonic() + 60
+    while not any((d / "unzip").is_dir() for d in tmp.iterdir()):          # the container is being built
+        assert proc.poll() is None and time.monotonic() < deadline, "the export ended before it could be killed"
+    proc.kill()
+    proc.wait()
+    assert out.read_bytes() == b"the old FMU" and [p.name for p in out.parent.iterdir()] == ["loop.fmu"]
+    left = [d.name for d in tmp.iterdir()]
+    assert left, "the killed export left no temporary folder (killed too late?)"
+    later = emcosim(["info", "mems_regulation_Dd0", "--fmu-dir", str(fmu_dir)], env=env)
+    assert later.returncode == 0, later.stderr
+    assert list(tmp.iterdir()) == [], f"left after the next start: {left}"
+    tally.add("output_integrity", "kill -9 of an export", "clean_error")

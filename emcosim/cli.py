@@ -510,7 +510,8 @@ def cmd_certify(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .engine.outputs import OutputFolder, reason_of
+    from .engine.output_folder import OutputFolder
+    from .engine.outputs import reason_of
     from .paper.sweep import RowStream, parse_grid, parse_sample, security, sweep
     from .paper.sweep_output import plot, write_table
 

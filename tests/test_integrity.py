@@ -185,7 +185,7 @@ def test_reproduce_refuses_a_read_only_out_before_any_scenario(fmu_dir, tmp_path
 
 
 def test_failed_reproduce_leaves_the_old_results_alone(fmu_dir, tmp_path):
-    from emcosim.engine.outputs import OutputFolder
+    from emcosim.engine.output_folder import OutputFolder
     from emcosim.paper.reproduce import reproduce
 
     out = tmp_path / "results"

@@ -105,7 +105,7 @@ def test_an_orphans_comment_takes_no_text_from_its_name(tmp_path):
 
 def test_folder_orphan_never_writes_through_a_dangling_symlink(tmp_path, victim):
     """The folder variant: OUT.incomplete-PID/ holding a marker and PARTIAL.txt as a dangling symlink."""
-    from emcosim.engine.outputs import OutputFolder
+    from emcosim.engine.output_folder import OutputFolder
 
     planted = tmp_path / "out.incomplete-999999"
     planted.mkdir()
@@ -228,7 +228,7 @@ def test_reproduce_refuses_a_users_folder(fmu_dir, tmp_path):
 
 
 def written_folder(dest: Path, files: dict[str, str]) -> None:
-    from emcosim.engine.outputs import OutputFolder
+    from emcosim.engine.output_folder import OutputFolder
 
     with OutputFolder(dest) as folder:
         for name, text in files.items():
@@ -246,7 +246,7 @@ def test_a_folder_emcosim_wrote_is_replaced(tmp_path):
 @pytest.mark.parametrize("change", ["added", "edited"])
 def test_a_folder_emcosim_wrote_then_changed_is_refused(tmp_path, change):
     """A file the user added to (or edited in) a results folder is never deleted without a word."""
-    from emcosim.engine.outputs import OutputFolder
+    from emcosim.engine.output_folder import OutputFolder
 
     out = tmp_path / "out"
     written_folder(out, {"a.csv": "1\n"})
@@ -263,7 +263,7 @@ def test_a_folder_emcosim_wrote_then_changed_is_refused(tmp_path, change):
 def test_a_file_added_during_the_run_is_not_deleted(tmp_path):
     """The check is repeated when the folder is replaced: a file added while the run went is kept,
     and the new results go to OUT.partial."""
-    from emcosim.engine.outputs import OutputFolder
+    from emcosim.engine.output_folder import OutputFolder
 
     out = tmp_path / "out"
     written_folder(out, {"a.csv": "1\n"})
@@ -293,7 +293,7 @@ def test_second_failed_run_keeps_the_first_partial_file(loop, tmp_path, capsys):
 
 
 def test_second_failed_folder_keeps_the_first_partial_folder(tmp_path):
-    from emcosim.engine.outputs import OutputFolder
+    from emcosim.engine.output_folder import OutputFolder
 
     out = tmp_path / "out"
     for n in (1, 2):

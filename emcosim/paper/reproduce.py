@@ -20,7 +20,8 @@ import numpy as np
 from ..engine import stopping
 from ..engine.errors import Interrupted, ScenarioError, SimulationError
 from ..engine.master import simulate
-from ..engine.outputs import OutputFolder, write_csv
+from ..engine.output_folder import OutputFolder
+from ..engine.outputs import write_csv
 from ..engine.results import Result
 from ..engine.ssd import read_scenario
 from ..progress import ProgressBar
@@ -340,7 +341,7 @@ def reproduce(out_dir: str | Path = "results", stop_time: float | None = None, o
 
     The output folder is checked before any scenario runs, and written as a whole: everything goes
     into a fresh folder beside it that replaces out_dir only when every scenario ran (see
-    outputs.OutputFolder). A failed scenario leaves out what needs it (its rows up to the failure go
+    output_folder.OutputFolder). A failed scenario leaves out what needs it (its rows up to the failure go
     to NAME.partial.csv) and ends in a ScenarioError naming it, after everything else is written
     into OUT.partial; an interruption keeps the finished scenarios' rows there (NAME.csv). out_dir
     itself is then left as it was."""

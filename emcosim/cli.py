@@ -28,7 +28,7 @@ FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "-
          "coupling": "--coupling", "coupling_order": "--coupling-order", "max_steps": "--max-steps",
          "start_values": "--set", "max_bytes": "--ssp-max-size", "max_files": "--ssp-max-files",
          "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver",
-         "solver_steps": "--solver-steps", "rtol": "--rtol"}
+         "solver_steps": "--solver-steps", "rtol": "--rtol", "max_runs": "--max-runs"}
 
 
 def scenario_dirs() -> list[Path]:
@@ -188,6 +188,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="uncertain parameter drawn uniformly from [LOW, HIGH] (repeatable; needs --samples)")
     sw.add_argument("--samples", type=int, default=0, help="random draws per grid point (same draws for every point)")
     sw.add_argument("--seed", type=int, default=0, help="seed of the random draws (default 0)")
+    sw.add_argument("--max-runs", type=int, default=None, metavar="N",
+                    help="run a sweep of up to N runs (default: refused above 100000, emcosim.paper.sweep.MAX_RUNS)")
     sw.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
     sw.add_argument("--scheduler", metavar="tls://HOST:PORT", help="use this running dask scheduler instead of a local cluster "
                                                                   "(the local cluster uses TLS with temporary credentials)")
@@ -512,11 +514,15 @@ def cmd_certify(args) -> int:
 def cmd_sweep(args) -> int:
     from .engine.output_folder import OutputFolder
     from .engine.outputs import reason_of
-    from .paper.sweep import RowStream, parse_grid, parse_sample, security, sweep
+    from .paper.sweep import MAX_RUNS, RowStream, parse_grid, parse_sample, points, security, sweep
     from .paper.sweep_output import plot, write_table
 
-    grid = [parse_grid(g) for g in args.grid]
+    max_runs = MAX_RUNS if args.max_runs is None else args.max_runs
+    if max_runs < 1:
+        raise ScenarioError(f"--max-runs {max_runs}: must be >= 1")
+    grid = [parse_grid(g, max_runs) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
+    points(grid, samples, args.samples, args.seed, max_runs)       # its size, before anything is read
     run_options(args)                             # checked as run's
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
@@ -532,7 +538,8 @@ def cmd_sweep(args) -> int:
             rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
                                step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
                                stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream,
-                               tolerance=args.tolerance, coupling=args.coupling, coupling_order=args.coupling_order)
+                               tolerance=args.tolerance, coupling=args.coupling, coupling_order=args.coupling_order,
+                               max_runs=max_runs)
         finally:
             stream.close()
         files = write_table(rows, folder.path, info)

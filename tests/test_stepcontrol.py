@@ -159,3 +159,42 @@ def test_an_fmu_that_cannot_save_its_state_ends_the_run_clearly(make, tolerance,
         with pytest.raises(SimulationError, match=r"ToyPlant\w*\.fmu: component 'plant' failed in fmi2GetFMUstate "
                                                   r"at t = 0 s \(the master tries which input derivative orders"):
             sim.run(tolerance=tolerance, record=["plant.x"], coupling=coupling)
+
+
+def test_an_unreachable_tolerance_stops_at_the_resolution_of_time(fmu_dir, tmp_path, capsys):
+    """Issue 26, item 8: `--tolerance 1e-15` on a MEMS scenario. The coupling defects are rounding noise
+    (about 2.6e-16) at the level 5e-16 that tolerance asks for, so every step is rejected and shrunk. The step
+    control used to go on until t + h == t and hand a step of 0 to fmi2DoStep, which the Reference FMU refused
+    ("blaming" it); now it stops at the step that would fall below 4 ulp of the horizon's end, the bound a fixed
+    step has (options.experiment), with its own message, and the rows before are kept."""
+    from emcosim.cli import main
+    from emcosim.engine.errors import SimulationError
+    from tests.helpers import scenario
+
+    s = scenario("mems_regulation_Dd0", fmu_dir)
+    with pytest.raises(SimulationError) as caught:
+        simulate(s, tolerance=1e-15, stop_time=1e-3, record=["plant.q"])
+    text = str(caught.value)
+    assert "Reference" not in text and "fmi2DoStep" not in text, text
+    assert "below the resolution of time near t = 0.001 s" in text and "tolerance 1e-15 cannot be kept" in text
+
+    from emcosim.engine.stepcontrol import StepBelowResolution, resolution
+    assert isinstance(caught.value, StepBelowResolution)
+    rows = caught.value.result.rows
+    assert len(rows) > 1 and all(b[0] > a[0] for a, b in zip(rows, rows[1:]))     # time strictly increases
+    assert resolution(0.0, 1e-3) == 4 * np.spacing(1e-3)
+    out = tmp_path / "x.csv"
+    assert main(["run", "mems_regulation_Dd0", "--fmu-dir", str(fmu_dir), "--tolerance", "1e-15", "--stop-time",
+                 "1e-3", "-o", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("emcosim: error: error-controlled steps: the step fell to") and "Reference" not in err
+    assert "--tolerance 1e-15 cannot be kept" in err and "give a larger --tolerance" in err
+    assert not out.exists() and (tmp_path / "x.partial.csv").is_file()
+
+
+def test_a_reachable_tight_tolerance_still_runs(fmu_dir):
+    """The bound is the resolution of time, not a guess at the tolerance: 1e-13 still runs on the same scenario."""
+    from tests.helpers import scenario
+
+    r = simulate(scenario("mems_regulation_Dd0", fmu_dir), tolerance=1e-13, stop_time=1e-3, record=["plant.q"])
+    assert r.time[-1] == pytest.approx(1e-3) and r.step_control.estimated_error < 1e-13

@@ -165,6 +165,90 @@ def test_malformed_specifications_are_one_line_errors(args, message, fmu_dir, tm
     assert len(err.splitlines()) == 1 and err.startswith("emcosim: error:") and message in err, err
 
 
+# ---- bounds (issue 26, item 6) -----------------------------------------------------------------------
+
+def test_a_grid_beyond_the_limit_is_refused_before_anything_runs(fmu_dir, tmp_path):
+    """1000 x 1000 used to start a cluster and submit 10^6 tasks (1.1 GB) before collecting one row. Now a
+    one-line error naming the count, the limit and the option, in well under the 60 s this test allows it
+    (the process group is killed after that), and nothing written."""
+    out = tmp_path / "big"
+    argv = [sys.executable, "-m", "emcosim.cli", "sweep", SCENARIO, "--grid", "controller.D_d=-1:0:1000",
+            "--grid", "controller.rbar_e=90:110:1000", "--fmu-dir", str(fmu_dir), "--out", str(out), "--no-progress"]
+    tic = time.monotonic()
+    proc = subprocess.Popen(argv, cwd=str(ROOT), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, 9)
+        proc.communicate()
+        pytest.fail("a 10^6-run sweep was started instead of refused")
+    assert proc.returncode == 1 and time.monotonic() - tic < 30, err
+    assert err.strip() == ("emcosim: error: --grid/--sample (1000 x 1000) makes 1000000 runs, more than the limit of "
+                           "100000 runs of a sweep; give --max-runs 1000000 to run them anyway"), err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_limit_is_overridable_and_counts_every_run():
+    from emcosim.engine.errors import LimitError
+    from emcosim.paper.sweep import MAX_RUNS
+
+    assert MAX_RUNS == 100_000
+    axes = [("a.x", [float(i) for i in range(400)]), ("b.y", [float(i) for i in range(300)])]
+    with pytest.raises(LimitError, match="400 x 300.* makes 120000 runs") as caught:
+        points(axes)
+    assert caught.value.option == "max_runs" and "--max-runs 120000" in caught.value.describe(cli.FLAGS)
+    assert len(points(axes, max_runs=120_000)) == 120_000
+    with pytest.raises(LimitError, match=r"\(10 x 20000 samples\) makes 200000 runs"):
+        points([("a.x", [0.0] * 10)], [("plant.m", 1.0, 2.0)], 20_000)    # the draws count too
+    with pytest.raises(LimitError, match="controller.D_d=0:1:100001 makes 100001 runs"):
+        parse_grid("controller.D_d=0:1:100001")                # refused before its values are made
+    assert len(parse_grid("controller.D_d=0:1:100001", max_runs=100_001)[1]) == 100_001
+
+
+def test_max_runs_on_the_command_line(fmu_dir, tmp_path, capsys):
+    assert cli.main(["sweep", SCENARIO, "--grid", "controller.D_d=-1:0:3", "--max-runs", "2", "--out",
+                     str(tmp_path / "x"), "--fmu-dir", str(fmu_dir)]) == 1
+    assert "makes 3 runs, more than the limit of 2 runs of a sweep; give --max-runs 3" in capsys.readouterr().err
+    assert cli.main(["sweep", SCENARIO, "--grid", "controller.D_d=-1:0:3", "--max-runs", "0"]) == 1
+    assert capsys.readouterr().err.strip() == "emcosim: error: --max-runs 0: must be >= 1"
+
+
+class CountingClient:
+    """A dask client that counts the runs submitted but not yet handed back to `on_row`."""
+
+    def __init__(self, client):
+        self.client, self.submitted, self.returned, self.most = client, 0, 0, 0
+
+    def submit(self, *args, **kwargs):
+        self.most = max(self.most, self.submitted - self.returned)
+        self.submitted += 1
+        return self.client.submit(*args, **kwargs)
+
+    def on_row(self, i: int, row: dict) -> None:
+        self.returned += 1
+
+    def __getattr__(self, name):
+        return getattr(self.client, name)
+
+
+def test_runs_are_submitted_in_bounded_batches(fmu_dir):
+    """All runs used to be submitted before the first result was collected (10^6 futures and task graphs
+    for a 1000 x 1000 grid). Now IN_FLIGHT_PER_THREAD per worker thread are in flight, the next one
+    submitted as each finishes; the rows come back complete and in run order."""
+    from emcosim.paper.sweep import dask_client, run_all
+
+    runs = points([("controller.D_d", list(np.linspace(-1, 0, 24)))])
+    ssd = str((ROOT / "scenarios" / SCENARIO / "SystemStructure.ssd").resolve())
+    with dask_client(workers=1) as client:
+        spy = CountingClient(client)
+        rows = run_all(spy, ssd, str(fmu_dir), runs, stop_time=2e-4, step_size=4e-6, stream=None, on_row=spy.on_row)
+    assert spy.submitted == spy.returned == 24
+    assert 1 <= spy.most <= 2, spy.most                        # IN_FLIGHT_PER_THREAD x 1 worker thread
+    assert [r["controller.D_d"] for r in rows] == [r["controller.D_d"] for r in runs]
+    assert all(r["status"] == "ok" for r in rows)
+
+
 # ---- plots: what each figure shows (its data, also stored in the PNG's metadata) ------------------
 
 def _rows(values: dict[tuple[float, float], float], metric: str) -> list[dict]:

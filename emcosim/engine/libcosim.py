@@ -7,10 +7,16 @@ step. A direct-feedthrough controller's output at t_n therefore reaches the plan
 (the plant integrates [t_n, t_n+1] with u(t_{n-1})), where our master resolves it at t_n.
 The libcosim trajectory then differs from ours by O(h), which the cross-check test bounds.
 
-libcosim calls the FMUs from its own worker threads. pythonfmu 0.7.0 FMUs driven from a thread other
-than the process's main thread leave the heap corrupted, and glibc aborts the process when it
-exits. `simulate_libcosim` therefore runs libcosim in a child process (a fresh interpreter) and
-returns its results; whatever happens to the child at its exit cannot take the caller down.
+libcosim calls the FMUs from its own worker threads. That does not harm this suite's FMUs: libcosim
+run in this process (`_simulate`, maglev_tracking_D-1_R0.82 over 0.5 s) exited cleanly in 10 of 10
+processes, and so did 10 of 10 processes that ran that loop through the master in a thread other
+than the main one (2026-12-01; tests/test_libcosim_in_process.py repeats the first). An earlier note
+here said such threads corrupt the heap so that glibc aborts the process at exit: that was pythonfmu
+0.7.0 freeing its interpreter state at exit (docs/reliability.md, finding 1), which this suite's FMU
+loader no longer does. `simulate_libcosim` still runs libcosim in a child process (a fresh
+interpreter) and returns its results, for the FMUs that are not ours: one built with stock
+pythonfmu still aborts its host at exit now and then (emcosim.cli.entry gives the measurement), and a
+crash in libcosim's or an FMU's native code then ends the child, not the caller.
 """
 from __future__ import annotations
 
@@ -30,7 +36,8 @@ def simulate_libcosim(scenario: Scenario, stop_time: float | None = None, step_s
                       start_values: dict[str, float] | None = None, record: list[str] | None = None) -> Result:
     """Run `scenario` with a fixed step in libcosim, which reads the .ssd/.ssv files itself (packed
     into a temporary .ssp with the FMUs the scenario resolved); record `record` (default: every
-    output connector) at every communication point. libcosim runs in a child process (see above)."""
+    output connector) at every communication point. libcosim runs in a child process (see the module
+    docstring for why)."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool

@@ -275,21 +275,40 @@ def _read_component(el: ET.Element, ssd: Path, units: dict[str, Unit], check_sou
             if inline is None:
                 raise ScenarioError(f"{ssd}: ParameterBinding of '{name}' has neither a source nor ParameterValues")
             values = _read_parameters(inline, ssd, _units(inline.find("ssv:Units", NS), ssd))
-        for pname, p in values.items():                 # later bindings take priority (SSP)
-            p.name = pname[len(prefix):] if prefix and pname.startswith(prefix) else pname
-            comp.parameters[p.name] = p
+        _bind(comp, values, prefix, src or ssd)
     return comp
 
 
+def _bind(comp: Component, values: dict[str, Parameter], prefix: str, where: str | Path) -> None:
+    """A binding's values into the component (a later binding takes priority over an earlier one, as
+    SSP says); two names of one binding that are one variable without the prefix are refused."""
+    seen: dict[str, str] = {}
+    for pname, p in values.items():
+        p.name = pname[len(prefix):] if prefix and pname.startswith(prefix) else pname
+        if p.name in seen:
+            raise ScenarioError(f"{where}: parameters {seen[p.name]} and {pname} both set {comp.name}.{p.name} "
+                                f"(binding prefix {prefix!r}); keep one")
+        seen[p.name] = pname
+        comp.parameters[p.name] = p
+
+
 def _read_parameters(root: ET.Element, path: Path, units: dict[str, Unit]) -> dict[str, Parameter]:
-    params = {}
-    for p in root.findall("ssv:Parameters/ssv:Parameter", NS):
+    """The parameters of a ParameterSet by name; a name given twice is refused, naming both entries
+    (which one a tool applies is not defined: emcosim applied the second, others may take the first)."""
+    params: dict[str, Parameter] = {}
+    where: dict[str, tuple[int, str]] = {}               # name -> (position in the set, value as written)
+    for k, p in enumerate(root.findall("ssv:Parameters/ssv:Parameter", NS), 1):
         name = _attr(p, "name", path)
         kinds = [t for t in TYPES if p.find(f"ssv:{t}", NS) is not None]
         if len(kinds) != 1:
             raise ScenarioError(f"{path}: parameter {name} needs exactly one of ssv:{', ssv:'.join(TYPES)}")
         v = p.find(f"ssv:{kinds[0]}", NS)
         raw = _attr(v, "value", path)
+        if name in where:
+            first, value = where[name]
+            raise ScenarioError(f"{path}: parameter {name} is set twice: ssv:Parameter {first} (value {value!r}) "
+                                f"and ssv:Parameter {k} (value {raw!r}) of the set; keep one")
+        where[name] = (k, raw)
         unit = v.get("unit")
         params[name] = Parameter(name, kinds[0], parse_value(raw, kinds[0], f"{path}: parameter {name}"),
                                  unit=unit, unit_definition=units.get(unit) if unit else None)

@@ -36,6 +36,11 @@ How (docs/scenarios.md, "Steps that keep a tolerance"):
    were not held by the maximum step or the stability bound, the scenario is run again with
    eps = aim / C from the first run's calibration (the global error is proportional to eps).
 
+A step below the resolution of time (4 ulp of the horizon's end, as `options.experiment` refuses for a
+fixed step) ends the run with `StepBelowResolution`: a tolerance that the values' rounding cannot
+meet (e.g. 1e-15, where a defect of a few ulp is rejected) would otherwise shrink the step until
+t + h == t and hand a step of 0 to fmi2DoStep, which the first FMU refuses with its own message.
+
 Cost: the shadow copy adds half a step of every FMU with inputs per communication step, plus an
 FMU-state save of both copies per two steps (rollback). The report gives the steps taken and
 rejected, the runs, and the estimated error.
@@ -44,7 +49,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable, Mapping
 
 from . import implicit
 from .errors import ScenarioError, SimulationError
@@ -64,6 +69,24 @@ KEEP = 1.5            # implicit coupling: a step that could grow by less than t
 ITERATION = 0.1       # implicit coupling: the inputs' residual at the end of a step, relative to eps
 RUNG = 2 ** 0.25      # implicit coupling: steps on the rungs h_max / RUNG^k, so that step sizes recur and
                       # the iteration's Jacobians kept per size (implicit.py) serve them again
+
+
+class StepBelowResolution(SimulationError):
+    """The step the control wants is below the resolution of time: the run's tolerance cannot be kept.
+    The message names the tolerance as `describe(names)` spells it (the command line: --tolerance)."""
+
+    def __init__(self, template: str, **fields: Any):
+        self.template, self.fields = template, fields
+        super().__init__(self.describe())
+
+    def describe(self, names: Mapping[str, str] | None = None) -> str:
+        return self.template.format(tolerance=(names or {}).get("tolerance", "tolerance"), **self.fields)
+
+
+def resolution(t0: float, t_stop: float) -> float:
+    """The smallest communication step [s] time can resolve over [t0, t_stop]: 4 ulp of its far end
+    (the bound `options.experiment` puts on a fixed step)."""
+    return 4 * math.ulp(max(abs(t0), abs(t_stop)))
 
 
 @dataclass
@@ -229,8 +252,10 @@ class StepControl:
         self.fmus = States(main.order + shadow.order, "a rejected step rolls it back")
         self.defect, self.far_defect = _Defect(main), _Defect(shadow)
         self.h = min(h0, h_max)
+        self.h_floor = resolution(t0, t_stop)
         self.h_stable = math.inf
         self.t = t0
+        self.last_defect = (0.0, 0.0)                        # the two copies' defects at the last rejection
 
     def run(self) -> StepReport:
         try:
@@ -261,6 +286,8 @@ class StepControl:
         main, shadow, t, eps = self.main, self.shadow, self.t, self.eps
         if main.implicit is not None:
             self.h = self.h_max / RUNG ** math.ceil(math.log(self.h_max / self.h, RUNG) - 1e-9)
+        if self.h < self.h_floor:
+            self._below_resolution()
         H = min(SUBSTEPS * self.h, self.t_stop - t)
         last = self.t_stop - (t + H) <= 0.1 * H
         if last:
@@ -303,6 +330,16 @@ class StepControl:
             trial.factor, trial.failure = SHRINK, exc
         return trial
 
+    def _below_resolution(self) -> None:
+        """End the run: the next step is below the resolution of time (StepBelowResolution)."""
+        edge = max(abs(self.t0), abs(self.t_stop))
+        raise StepBelowResolution(
+            "error-controlled steps: the step fell to {h:.3g} s at t = {t:.9g} s, below the resolution of time "
+            "near t = {edge:g} s (4 x {ulp:.3g} s): {tolerance} {tol:g} cannot be kept (coupling defects of the last "
+            "rejected step: {near:.2g} in steps of h, {far:.2g} in one of 2h, against a level of {eps:.2g}); give a "
+            "larger {tolerance}", h=self.h, t=self.t, edge=edge, ulp=math.ulp(edge), tol=self.report.tolerance,
+            near=self.last_defect[0], far=self.last_defect[1], eps=self.eps)
+
     def reject(self, trial: _Trial) -> None:
         """Roll both copies back to the trial's start and shorten the step; a bound is learnt from a step
         that left the asymptotic range or failed (explicit coupling only: implicit coupling has no stability
@@ -314,6 +351,7 @@ class StepControl:
             copy.t = t
             copy.resolve()
         self.report.rejected += 1
+        self.last_defect = (trial.worst, trial.far_worst)
         self.h = trial.H / SUBSTEPS * max(SHRINK, min(trial.factor, 0.5))
         if (trial.failure is not None or trial.factor == 0.5) and self.main.implicit is None:
             self.h_stable = self.h                           # raised slowly (STABLE_GROWTH) from here

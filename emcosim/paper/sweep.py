@@ -22,12 +22,21 @@ paths as the machine that starts the sweep (scenario, FMUs) and have emcosim ins
 A run that fails (a gain the controller refuses, an FMU error) becomes a row with its error message;
 the sweep goes on. Finished rows are appended to the output folder's sweep.csv as they arrive
 (`RowStream`), so an interrupted sweep (Ctrl-C, SIGTERM) keeps them.
+
+Bounds: a sweep of more than MAX_RUNS runs is refused before anything runs unless `max_runs` (the
+command's --max-runs) allows it; the runs go to the cluster IN_FLIGHT_PER_THREAD per worker thread at
+a time, the next one as each finishes (`run_all`), so the client and the scheduler hold a handful of
+tasks whatever the grid, and an interruption cancels only those. The local cluster serves no HTTP
+(dask starts a dashboard or, without one, its info, JSON and metrics pages on every scheduler and
+worker, in plain HTTP to anyone on the machine): `dask_client` gives them no routes and closes their
+sockets once the cluster is up.
 """
 from __future__ import annotations
 
 import atexit
 import csv
 import itertools
+import math
 import sys
 import threading
 import time
@@ -38,15 +47,26 @@ from typing import Iterator, TextIO
 
 import numpy as np
 
-from ..engine.errors import ScenarioError
+from ..engine.errors import LimitError, ScenarioError
 from ..engine.ssd import Scenario, finite_number, read_scenario, with_values
 from .sweep_output import columns, csv_cells
 
 # ---- the specification of a sweep ----------------------------------------------------------------
 
-def parse_grid(spec: str) -> tuple[str, list[float]]:
+MAX_RUNS = 100_000
+"""The most runs a sweep makes unless told otherwise (`max_runs`, --max-runs): a typing slip such as
+1000 x 1000 is refused before anything runs. The table of a sweep is kept in memory (about 1.5 kB
+per run: sweep.md, sweep.json and the plots are written from it), and 10^5 runs of 0.1 s are about
+three hours on one core."""
+
+IN_FLIGHT_PER_THREAD = 2
+"""Runs submitted to the cluster per worker thread at a time (one running, one waiting): see run_all."""
+
+
+def parse_grid(spec: str, max_runs: int = MAX_RUNS) -> tuple[str, list[float]]:
     """'component.parameter=START:STOP:N' (N equally spaced values, both ends included) or
-    'component.parameter=V1,V2,...' -> (name, values)."""
+    'component.parameter=V1,V2,...' -> (name, values). An N above `max_runs` is refused before the
+    values are made."""
     name, values_text = _split(spec, "--grid", "START:STOP:N or V1,V2,...")
     if ":" in values_text:
         parts = values_text.split(":")
@@ -59,6 +79,7 @@ def parse_grid(spec: str) -> tuple[str, list[float]]:
             raise ScenarioError(f"--grid {spec}: N = {parts[2]!r} is not a whole number") from None
         if n < 1 or (n == 1 and start != stop):
             raise ScenarioError(f"--grid {spec}: N must be >= 2 (or 1 with START = STOP)")
+        check_size(n, f"--grid {spec}", max_runs)
         return name, [float(v) for v in np.linspace(start, stop, n)]
     values = [finite_number(v, f"--grid {spec}") for v in values_text.split(",")]
     return name, values
@@ -85,10 +106,27 @@ def _split(spec: str, option: str, form: str) -> tuple[str, str]:
     return name, values.strip()
 
 
+def run_count(grid: list[tuple[str, list[float]]], n_samples: int = 0) -> int:
+    """How many runs the sweep makes: the product of the grid's axis lengths times the draws."""
+    return math.prod(len(values) for _, values in grid) * max(n_samples, 1)
+
+
+def check_size(runs: int, what: str, max_runs: int = MAX_RUNS) -> None:
+    """A LimitError (option max_runs) if `what` makes more than max_runs runs."""
+    if runs > max_runs:
+        raise LimitError("{what} makes {runs} runs, more than the limit of {limit} runs of a sweep; give {max_runs} "
+                         "{runs} to run them anyway", "max_runs", what=what, runs=runs, limit=max_runs)
+
+
 def points(grid: list[tuple[str, list[float]]], samples: list[tuple[str, float, float]] = (),
-           n_samples: int = 0, seed: int = 0) -> list[dict[str, float]]:
+           n_samples: int = 0, seed: int = 0, max_runs: int = MAX_RUNS) -> list[dict[str, float]]:
     """Parameter values of every run: the Cartesian product of the grid axes (first axis slowest),
-    each combined with the same n_samples uniform random draws of the sampled parameters."""
+    each combined with the same n_samples uniform random draws of the sampled parameters. More than
+    max_runs runs are refused (check_size) before any is made."""
+    if max_runs < 1:
+        raise LimitError("{max_runs} {value}: must be >= 1", "max_runs", value=max_runs)
+    shape = " x ".join([str(len(v)) for _, v in grid] + ([f"{n_samples} samples"] if n_samples else []))
+    check_size(run_count(grid, n_samples), f"--grid/--sample ({shape})", max_runs)
     names = [n for n, _ in grid] + [n for n, _, _ in samples]
     if len(set(names)) != len(names):
         raise ScenarioError(f"a parameter appears twice in --grid/--sample: {', '.join(names)}")
@@ -250,13 +288,62 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, securi
         local = Security.temporary()                  # needs the `cryptography` package
     except ImportError as exc:
         raise ScenarioError(f"emcosim sweep: {exc}") from None
-    with _sigint_ignored():                          # the workers inherit it: Ctrl-C is the client's business
+    with _sigint_ignored(), _no_http_routes():       # the workers inherit both
         # silence_logs CRITICAL: every failure reaches the table as a row; what dask logs at ERROR is the
         # noise of a shutdown after Ctrl-C (a worker's heartbeat racing the scheduler's close)
+        # the scheduler's HTTP socket (closed below) on a free port: not 8787, which may be another's
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               host="127.0.0.1", security=local, silence_logs=logging.CRITICAL)
-    with cluster, Client(cluster, security=local) as client:
+                               host="127.0.0.1", security=local, silence_logs=logging.CRITICAL,
+                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    with _quiet_logs(), cluster, Client(cluster, security=local) as client:
+        close_http(client)
         yield client
+
+
+HTTP_ROUTES = ("distributed.scheduler.http.routes", "distributed.worker.http.routes")
+
+
+@contextmanager
+def _no_http_routes() -> Iterator[None]:
+    """Dask configured to serve nothing over HTTP while the local cluster starts (the worker processes
+    take the configuration with them). Without a dashboard dask still listens for HTTP on every
+    scheduler (port 8787 if free) and worker, without TLS, and serves its info pages (logs, worker
+    addresses, call stacks of the workers' tasks), JSON and Prometheus metrics to any local user."""
+    import dask
+
+    with dask.config.set({key: [] for key in HTTP_ROUTES}):
+        yield
+
+
+def _stop_scheduler_http(dask_scheduler) -> None:
+    dask_scheduler.http_server.stop()
+
+
+def _stop_worker_http(dask_worker) -> None:
+    dask_worker.http_server.stop()
+
+
+def close_http(client) -> None:
+    """Close the HTTP sockets of the scheduler and of every worker of `client`'s cluster (each in its
+    own event loop): the local cluster talks TLS only."""
+    client.run_on_scheduler(_stop_scheduler_http)
+    client.run(_stop_worker_http)
+
+
+@contextmanager
+def _quiet_logs() -> Iterator[None]:
+    """dask's log lines below CRITICAL silenced until the local cluster is closed: LocalCluster's own
+    silence_logs ends before its scheduler has sent its last messages to a client closed by Ctrl-C
+    (a CommClosedError traceback on stderr). Failures of runs reach the table as rows."""
+    import logging
+
+    logger = logging.getLogger("distributed")
+    previous = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(previous)
 
 
 @contextmanager
@@ -278,37 +365,86 @@ def _sigint_ignored() -> Iterator[None]:
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             stop_time: float | None = None, step_size: float | None = None,
             stream: TextIO | None = sys.stderr, on_row=None, tolerance: float | None = None,
-            coupling: str | None = None, coupling_order: int | None = None) -> list[dict]:
-    """Submit every run to the cluster and return the rows in the order of `runs`; a progress bar
-    of the runs done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is
-    called as each run finishes. The other arguments: those of `run_point`."""
+            coupling: str | None = None, coupling_order: int | None = None,
+            in_flight: int | None = None) -> list[dict]:
+    """Run every point on the cluster and return the rows in the order of `runs`. At most `in_flight`
+    runs are submitted at a time (default IN_FLIGHT_PER_THREAD per worker thread, counted again every
+    second so that workers joining a running cluster get work), the next ones as each finishes: the
+    client and scheduler hold a few tasks whatever the grid. A progress bar of the runs
+    done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is called as each
+    run finishes. An interruption (KeyboardInterrupt) cancels the runs in flight. The other arguments:
+    those of `run_point`."""
     from dask.distributed import as_completed
 
     from ..progress import Counter
 
-    futures = [client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, tolerance, coupling,
-                             coupling_order, pure=False)
-               for values in runs]
-    index = {f.key: i for i, f in enumerate(futures)}
+    window = _Window(client, in_flight)
+    todo = iter(enumerate(runs))
+    pending: dict = {}                                 # future key -> (run number, future)
+    done = as_completed()
+
+    def submit(count: int) -> None:
+        for i, values in itertools.islice(todo, count):
+            future = client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, tolerance, coupling,
+                                   coupling_order, pure=False)
+            pending[future.key] = (i, future)
+            done.add(future)
+
     rows: list[dict | None] = [None] * len(runs)
     failed = 0
     bar = None if stream is None else Counter(len(runs), "sweep", "run", stream)
     try:
-        for future in as_completed(futures):
-            i = index[future.key]
-            try:
-                rows[i] = future.result()
-            except Exception as exc:                      # noqa: BLE001 - e.g. a worker process died
-                rows[i] = {**runs[i], "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+        submit(window.size())
+        for future in done:
+            i, _ = pending.pop(future.key)
+            rows[i] = _row_of(future, runs[i])
+            del future                                 # the scheduler forgets a result nobody holds
+            submit(max(window.size() - len(pending), 0))
             if on_row is not None:
                 on_row(i, rows[i])
             failed += rows[i]["status"] != "ok"
             if bar is not None:
                 bar.advance(f"{failed} failed" if failed else "")
+    except BaseException:
+        _cancel(client, [f for _, f in pending.values()])
+        raise
     finally:
         if bar is not None:
             bar.close()
     return rows
+
+
+class _Window:
+    """How many runs may be in flight: `fixed`, or IN_FLIGHT_PER_THREAD per worker thread of the cluster
+    (asked again at most once a second)."""
+
+    def __init__(self, client, fixed: int | None = None):
+        self.client, self.fixed = client, fixed
+        self.checked, self.value = -math.inf, 0
+
+    def size(self) -> int:
+        if self.fixed:
+            return self.fixed
+        if time.monotonic() - self.checked >= 1.0:
+            self.value = IN_FLIGHT_PER_THREAD * max(1, sum(self.client.nthreads().values()))
+            self.checked = time.monotonic()
+        return self.value
+
+
+def _row_of(future, values: dict[str, float]) -> dict:
+    """The row a finished run returned, or a row with the error if its task failed (a worker died)."""
+    try:
+        return future.result()
+    except Exception as exc:                          # noqa: BLE001 - e.g. a worker process died
+        return {**values, "status": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+
+
+def _cancel(client, futures: list) -> None:
+    """Cancel the runs in flight after an interruption (cleanup only: the cluster may be going away)."""
+    try:
+        client.cancel(futures, force=True)
+    except Exception:                                 # noqa: BLE001
+        pass
 
 
 def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
@@ -316,11 +452,11 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
           stop_time: float | None = None, step_size: float | None = None, workers: int | None = None,
           scheduler: str | None = None, stream: TextIO | None = sys.stderr, security=None,
           on_row=None, tolerance: float | None = None, coupling: str | None = None,
-          coupling_order: int | None = None) -> tuple[list[dict], dict]:
+          coupling_order: int | None = None, max_runs: int = MAX_RUNS) -> tuple[list[dict], dict]:
     """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
     the wall time and the throughput. `on_row(i, row)`: see `run_all`; `coupling`, `coupling_order`:
-    see `run_point`."""
-    runs = points(grid, samples, n_samples, seed)
+    see `run_point`; `max_runs`: see MAX_RUNS."""
+    runs = points(grid, samples, n_samples, seed, max_runs)
     names = list(runs[0])
     options = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
     units = check_parameters(scenario, names, runs[0], options)
@@ -328,13 +464,13 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
     tic = time.perf_counter()
     with dask_client(workers, scheduler, security) as client:
         started = time.perf_counter()
-        try:
-            rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row,
-                           tolerance, coupling, coupling_order)
-            end = time.perf_counter()
-            n_workers = len(client.nthreads())
-        finally:
-            close_on_workers(client)
+        # an interruption leaves the workers' FMUs alone: a cancelled run may still be stepping them (a local
+        # cluster's workers end with it; a remote worker keeps its session for the next sweep, or frees it at exit)
+        rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row,
+                       tolerance, coupling, coupling_order)
+        end = time.perf_counter()
+        n_workers = len(client.nthreads())
+        close_on_workers(client)
     closed = time.perf_counter()
     info = {"scenario": scenario.name, "runs": len(rows), "failed": sum(r["status"] != "ok" for r in rows),
             "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",

@@ -101,8 +101,18 @@ CONN = "ssd:System/ssd:Connections/ssd:Connection"
 ALGO = "ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation/osp:Algorithm/osp:FixedStepAlgorithm"
 PARAM = "ssv:Parameters/ssv:Parameter[@name='m']"
 
+def duplicate_parameter(root, parameters):
+    """Set plant.m a second time, to another value, further down the same ParameterSet (issue 26, item 8)."""
+    import copy
+    twice = copy.deepcopy(parameters.find("ssv:Parameter[@name='m']", NS))
+    real = twice.find("ssv:Real", NS)
+    real.set("value", repr(1.5 * float(real.get("value"))))
+    parameters.append(twice)
+
+
 # name -> mutation; every one of these makes the scenario invalid
 DESIGNED = {
+    "parameter set twice": _xml_mutation("plant.ssv", "ssv:Parameters", duplicate_parameter),
     "delete System": delete_child(".", "ssd:System"),
     "delete Elements": delete_child("ssd:System", "ssd:Elements"),
     "delete the plant component": delete_child("ssd:System/ssd:Elements", "ssd:Component[@name='plant']"),
@@ -256,3 +266,16 @@ def test_every_malformed_scenario_ends_in_a_one_line_error(fuzz_results, tally):
         "stderr_with_fmu_log_lines": sum(1 for r in results if r["status"] == 1 and len(r["stderr"].strip().splitlines()) > 1),
         "seconds": round(sum(r["seconds"] for r in results), 1)}
     assert not problems, f"{len(problems)} of {len(results)} cases:\n" + "\n".join(problems)
+
+
+def test_a_parameter_set_twice_is_refused_naming_both(fuzz_results):
+    """Issue 26, item 8: an .ssv that set plant.m twice ran with the second value (other tools may take the
+    first). Now the run is refused before anything is loaded, naming both entries and their values."""
+    results, _, _ = fuzz_results
+    found = [r for r in results if r["name"].endswith(": parameter set twice")]
+    assert len(found) == len(BASES)
+    for r in found:
+        line = one_line_error(r["stderr"])
+        assert "plant.ssv: parameter m is set twice: ssv:Parameter" in line and "keep one" in line, line
+        first, second = line.split("(value ")[1:3]
+        assert float(second.split("'")[1]) == 1.5 * float(first.split("'")[1]), line

@@ -6,7 +6,9 @@ cluster runs only its owner's code.
 - The local cluster speaks TLS with credentials made for this sweep: another process of the same
   machine (no credentials, plain TCP, or credentials of its own) cannot connect, let alone run code
   (the test's "attack" would create a file).
-- `--scheduler` takes the cluster's TLS files (as `dask scheduler --tls-ca-file ...` does)."""
+- `--scheduler` takes the cluster's TLS files (as `dask scheduler --tls-ca-file ...` does).
+- Issue 26: Ctrl-C on a 90000-run grid ends within seconds and keeps the finished rows; the local cluster
+  serves no HTTP (dask's dashboard or info pages) on any of its sockets."""
 from __future__ import annotations
 
 import os
@@ -63,6 +65,82 @@ def test_interrupted_sweep_keeps_the_finished_runs(fmu_dir, tmp_path, tally):
     assert "Traceback" not in err, err
     tally.add("sweep_integrity", "Ctrl-C keeps finished runs", "clean_error")
     tally.measurements["sweep_integrity"]["rows_kept"] = len(rows)
+
+
+def test_ctrl_c_on_a_huge_grid_ends_within_seconds_and_keeps_the_rows(fmu_dir, tmp_path, tally):
+    """Issue 26, item 6: a 300 x 300 grid (90000 runs, within MAX_RUNS). All tasks used to be submitted before
+    one result was collected: no row after minutes (RSS above 1 GB), and Ctrl-C did not end the process in
+    600 s (measured on da16e3a; the issue's 1000 x 1000 took 69 s and ended in TimeoutError with no partial
+    folder). Now the runs go out a few at a time: rows within seconds, and after SIGINT the process exits 130
+    within 10 s with every finished row kept and no traceback."""
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen([sys.executable, "-m", "emcosim.cli", "sweep", "mems_regulation_Dd0", "--stop-time", "2e-4",
+                             "--grid", "controller.D_d=-1:0:300", "--grid", "controller.rbar_e=90:110:300",
+                             "--step-size", "4e-6", "--workers", "2", "--out", str(out), "--fmu-dir", str(fmu_dir),
+                             "--no-progress"], cwd=str(ROOT), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 90
+        while finished_rows(tmp_path) < 4:
+            assert proc.poll() is None, f"the sweep ended early: {proc.communicate()[1]}"
+            assert time.monotonic() < deadline, "no 4 finished runs of the 90000 after 90 s"
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)
+        tic = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+        seconds = time.monotonic() - tic
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 130 and seconds < 10, (proc.returncode, seconds, err)
+    assert "Traceback" not in err and "TimeoutError" not in err, err
+    rows = read_table(tmp_path / "sweep.partial" / "sweep.csv")
+    assert len(rows) >= 4 and all(r["status"] == "ok" for r in rows)
+    assert f"{len(rows)} finished runs kept in" in err
+    tally.add("sweep_integrity", "Ctrl-C on a 90000-run grid", "clean_error")
+    tally.measurements["sweep_integrity"]["huge_grid_exit_s"] = round(seconds, 2)
+
+
+def _listening(pids: set[int]) -> list[tuple[int, str, int]]:
+    """(pid, address, port) of every TCP socket in LISTEN state of these processes."""
+    import psutil
+
+    found = []
+    for pid in pids:
+        for c in psutil.Process(pid).net_connections(kind="tcp"):
+            if c.status == psutil.CONN_LISTEN:
+                found.append((pid, c.laddr.ip, c.laddr.port))
+    return found
+
+
+def _speaks_http(address: str, port: int) -> bool:
+    import socket
+
+    try:
+        with socket.create_connection((address, port), timeout=5) as s:
+            s.sendall(b"GET /info/main/workers.html HTTP/1.0\r\nHost: localhost\r\n\r\n")
+            return s.recv(16).startswith(b"HTTP/")
+    except OSError:                                    # reset by a TLS server: no HTTP here
+        return False
+
+
+def test_local_cluster_serves_no_http(tally):
+    """Issue 26, item 6: without a dashboard, dask still served HTTP in clear on 127.0.0.1:8787 (the scheduler:
+    its info pages with the logs, the workers' addresses and their call stacks) and on one port per worker,
+    to any local user. Now every socket the sweep's cluster listens on (this process's scheduler and nannies,
+    the worker processes) speaks TLS only: a plain HTTP request gets no HTTP answer."""
+    import psutil
+
+    with dask_client(workers=2) as client:
+        assert client.submit(sum, [1, 2]).result() == 3
+        me = psutil.Process()
+        pids = {me.pid, *(c.pid for c in me.children(recursive=True))}
+        sockets = _listening(pids)
+        http = [(pid, port) for pid, address, port in sockets if _speaks_http(address, port)]
+    assert len(sockets) >= 5 and all(a == "127.0.0.1" for _, a, _ in sockets), sockets   # scheduler, 2 nannies, 2 workers
+    assert http == [], f"HTTP served on {http} (of {sockets})"
+    tally.add("sweep_integrity", "no HTTP on the local cluster", "correct", len(sockets))
 
 
 ATTACK = """

@@ -235,7 +235,7 @@ def initialize(system: System, parameters, planned: Experiment, rtol: float) -> 
         except FMICallException as exc:
             raise ScenarioError(f"{inst.path.name}: component '{inst.name}' refused {exc.function} "
                                 f"during initialization{last_message(inst)}") from None
-    system._t = planned.start_time
+    system.time = planned.start_time
     try:
         system.resolve(planned.start_time)
         for unit in system.units:
@@ -246,7 +246,7 @@ def initialize(system: System, parameters, planned: Experiment, rtol: float) -> 
                                     f"{last_message(unit.inst)}") from None
         _, next_event = system.discrete_states(planned.start_time)
         for unit in system.units:
-            system._call(unit, "fmi2EnterContinuousTimeMode")
+            system.call(unit, "fmi2EnterContinuousTimeMode")
     except SimulationError as exc:
         raise ScenarioError(f"initialization: {exc}") from None
     system.scale = system.nominals()

@@ -109,32 +109,32 @@ class System:
         self.statistics: Statistics | None = None
         self.fmu_time = 0.0                          # inside the FMUs' raw calls (the transfers time theirs)
         self.engine_time = 0.0                       # inside this object's methods the solver and the run call
-        self._t: float | None = None
+        self.time: float | None = None               # the time the FMUs were last set to (fmi2SetTime)
         self.discarded = ""                          # the last fmi2Discard of fmi2GetDerivatives
 
     # ---- FMI calls ----------------------------------------------------------------------------------
-    def _call(self, unit: _Unit, function: str, *args) -> int:
+    def call(self, unit: _Unit, function: str, *args) -> int:
         tic = time.perf_counter()
         status = unit.calls[function](unit.inst.component, *args)
         self.fmu_time += time.perf_counter() - tic
         if status > 2 or (status == 2 and function != "fmi2GetDerivatives"):
             raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' failed in {function} "
                                   f"(status {STATUS[status] if status < 6 else status}) at t = "
-                                  f"{self._t if self._t is not None else float('nan'):.9g} s{last_message(unit.inst)}")
+                                  f"{self.time if self.time is not None else float('nan'):.9g} s{last_message(unit.inst)}")
         return status
 
     def set_point(self, t: float, xi: np.ndarray, record: bool = False) -> None:
         """The FMUs at time t and scaled state xi, their connected values resolved (and the recorded ones)."""
-        if t != self._t:
-            self._t = t
+        if t != self.time:
+            self.time = t
             for unit in self.units:
-                self._call(unit, "fmi2SetTime", ctypes.c_double(t))
+                self.call(unit, "fmi2SetTime", ctypes.c_double(t))
         x = xi * self.scale
         for unit in self.with_states:
             buf = unit.x
             for i in range(unit.n):
                 buf[i] = x[unit.offset + i]
-            self._call(unit, "fmi2SetContinuousStates", buf, unit.n)
+            self.call(unit, "fmi2SetContinuousStates", buf, unit.n)
         self.resolve(t, record)
 
     def resolve(self, t: float, record: bool = False) -> None:
@@ -162,7 +162,7 @@ class System:
         self.set_point(t, xi)
         out = np.empty(self.n)
         for unit in self.with_states:
-            if self._call(unit, "fmi2GetDerivatives", unit.dx, unit.n) == 2:
+            if self.call(unit, "fmi2GetDerivatives", unit.dx, unit.n) == 2:
                 self.discarded = last_message(unit.inst)
                 out[:] = math.nan
                 return out
@@ -196,21 +196,21 @@ class System:
         self.set_point(t, xi)
         out: list[float] = []
         for unit in self.with_indicators:
-            self._call(unit, "fmi2GetEventIndicators", unit.z, unit.nz)
+            self.call(unit, "fmi2GetEventIndicators", unit.z, unit.nz)
             out.extend(unit.z)
         return np.array(out)
 
     def states(self) -> np.ndarray:
         x = np.empty(self.n)
         for unit in self.with_states:
-            self._call(unit, "fmi2GetContinuousStates", unit.x, unit.n)
+            self.call(unit, "fmi2GetContinuousStates", unit.x, unit.n)
             x[unit.offset:unit.offset + unit.n] = unit.x
         return x
 
     def nominals(self) -> np.ndarray:
         s = np.ones(self.n)
         for unit in self.with_states:
-            self._call(unit, "fmi2GetNominalsOfContinuousStates", unit.x, unit.n)
+            self.call(unit, "fmi2GetNominalsOfContinuousStates", unit.x, unit.n)
             s[unit.offset:unit.offset + unit.n] = [v if math.isfinite(v) and v > 0 else 1.0 for v in unit.x]
         return s
 
@@ -223,10 +223,10 @@ class System:
         """Every FMU through event mode at t (the FMUs already at t's state): (the states changed, the next
         time event or None). An FMU that asks to terminate ends the run."""
         for unit in self.units:
-            self._call(unit, "fmi2EnterEventMode")
+            self.call(unit, "fmi2EnterEventMode")
         changed, next_time = self.discrete_states(t)
         for unit in self.units:
-            self._call(unit, "fmi2EnterContinuousTimeMode")
+            self.call(unit, "fmi2EnterContinuousTimeMode")
         return changed, next_time
 
     def discrete_states(self, t: float) -> tuple[bool, float | None]:
@@ -237,7 +237,7 @@ class System:
             again = False
             next_time = None
             for unit in self.units:
-                self._call(unit, "fmi2NewDiscreteStates", ctypes.byref(info))
+                self.call(unit, "fmi2NewDiscreteStates", ctypes.byref(info))
                 if info.terminateSimulation:
                     raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' asked to terminate "
                                           f"the simulation at t = {t:.9g} s{last_message(unit.inst)}")
@@ -266,7 +266,7 @@ class System:
         enter, terminate = ctypes.c_int(0), ctypes.c_int(0)
         wanted = False
         for unit in self.step_reporters:
-            self._call(unit, "fmi2CompletedIntegratorStep", 1, ctypes.byref(enter), ctypes.byref(terminate))
+            self.call(unit, "fmi2CompletedIntegratorStep", 1, ctypes.byref(enter), ctypes.byref(terminate))
             if terminate.value:
                 raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' asked to terminate "
                                       f"the simulation at t = {t:.9g} s{last_message(unit.inst)}")

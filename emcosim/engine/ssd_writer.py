@@ -1,9 +1,10 @@
 """Writing SSP files: an .ssd (`system_structure_xml`) and an .ssv (`parameter_set_xml`) from the dataclasses of
-ssd.py, with the annotations other tools need (OpenModelica's fixed-step master, libcosim's and ecos's
-parameter sets)."""
+ssd.py, with the annotations other tools need (OpenModelica's fixed-step master or, for Model Exchange, its
+variable-step solver; libcosim's and ecos's parameter sets)."""
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from typing import Sequence
 
 from .ssd import EMCOSIM_ANNOTATION, NS, OMS_ANNOTATION, OSP_ANNOTATION, Parameter, Scenario
@@ -105,6 +106,53 @@ def oms_annotation(step_size: float, indent: str = "") -> list[str]:
         "    <oms:SimulationInformation>",
         f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="0.0001" '
         'relativeTolerance="0.0001"/>',
+        "    </oms:SimulationInformation>",
+        "  </oms:Annotations>",
+        "</ssc:Annotation>"]]
+
+
+@dataclass(frozen=True)
+class VariableStepSolver:
+    """OMSimulator's solver of a strongly coupled system (`oms:VariableStepSolver`): every FMU of the System
+    is loaded as Model Exchange and integrated by `method` ("cvode": BDF with a dense Jacobian of finite
+    differences, or "euler"). OMSimulator 2.1.3 reads every attribute and takes a missing one as 0, and
+    `maximumStepSize` 0 hangs it, so all five are always written.
+
+    `maximum_step` is also OMSimulator's output grid: each of its steps calls CVODE up to `time +
+    maximum_step` and writes a result row there. CVODE's absolute tolerance of a state is 0.01 *
+    `absolute_tolerance` * the FMU's nominal of it. OMSimulator's command line replaces both tolerances
+    of the root System by its `--tolerance` (default 1e-4); the step sizes stay the archive's."""
+
+    relative_tolerance: float
+    absolute_tolerance: float
+    initial_step: float
+    minimum_step: float
+    maximum_step: float
+    method: str = "cvode"
+
+    def __post_init__(self) -> None:
+        if self.method not in ("cvode", "euler"):
+            raise ValueError(f"VariableStepSolver method {self.method!r}: OMSimulator knows 'cvode' and 'euler'")
+        for name in ("relative_tolerance", "absolute_tolerance", "minimum_step", "maximum_step"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"VariableStepSolver {name} must be > 0 (OMSimulator hangs or fails on 0)")
+        if not 0 <= self.initial_step <= self.maximum_step or self.minimum_step > self.maximum_step:
+            raise ValueError(f"VariableStepSolver steps: need 0 <= initial ({self.initial_step:g}) <= maximum "
+                             f"({self.maximum_step:g}) and minimum ({self.minimum_step:g}) <= maximum "
+                             "(initial 0: CVODE estimates it)")
+
+
+def oms_solver_annotation(solver: VariableStepSolver, indent: str = "") -> list[str]:
+    """OpenModelica's annotation of a strongly coupled system (Model Exchange FMUs under OMSimulator's own
+    solver), in the same place as `oms_annotation`'s."""
+    return [indent + line for line in [
+        f'<ssc:Annotation type="{OMS_ANNOTATION}">',
+        "  <oms:Annotations>",
+        "    <oms:SimulationInformation>",
+        f'      <oms:VariableStepSolver description="{solver.method}" '
+        f'absoluteTolerance="{solver.absolute_tolerance!r}" relativeTolerance="{solver.relative_tolerance!r}" '
+        f'minimumStepSize="{solver.minimum_step!r}" maximumStepSize="{solver.maximum_step!r}" '
+        f'initialStepSize="{solver.initial_step!r}"/>',
         "    </oms:SimulationInformation>",
         "  </oms:Annotations>",
         "</ssc:Annotation>"]]

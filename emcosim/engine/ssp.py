@@ -3,7 +3,13 @@ its .ssv files beside it and every FMU under resources/, with the .ssd's `source
 rewritten to point there. Other SSP engines run such archives as they are (docs/ssp-engines.md):
 the archive's model and System names are identifiers (`ssd.identifier`, for OMSimulator), its
 System has OpenModelica's fixed-step annotation beside the OSP one, and every .ssv parameter set is
-named `ssd.PARAMETER_SET` (ecos applies only the set it is told to)."""
+named `ssd.PARAMETER_SET` (ecos applies only the set it is told to).
+
+With `model_exchange=True` the System's OpenModelica annotation is a variable-step solver instead
+(`ssd_writer.VariableStepSolver`): OMSimulator then runs the System as a strongly coupled one, every FMU
+as Model Exchange under its CVODE (docs/ssp-engines.md, "Model Exchange in OMSimulator"). The OSP
+annotation stays: our engine and libcosim still run such an archive as Co-Simulation, and ours as Model
+Exchange with `--interface-type ModelExchange`."""
 from __future__ import annotations
 
 import zipfile
@@ -12,17 +18,51 @@ from xml.etree import ElementTree as ET
 
 from .errors import ScenarioError
 from .ssd import NS, OMS_ANNOTATION, PARAMETER_SET, SSD_NAME, Scenario, parse, read_scenario, resolve_path
-from .ssd_writer import identifier, oms_annotation
+from .ssd_writer import VariableStepSolver, identifier, oms_annotation, oms_solver_annotation
+
+# Default step sizes of a Model Exchange archive, as fractions of the scenario's communication step h:
+# CVODE starts at 1e-9 h and may go down to 1e-15 h (the MEMS loops' charge layer, r_e c1 (q + c0) ~ 5e-11 s,
+# needs steps far below OMSimulator's default minimum of 1e-12 s at the start), and OMSimulator writes its
+# results and bounds CVODE's step at h.
+INITIAL_STEP_FRACTION = 1e-9
+MINIMUM_STEP_FRACTION = 1e-15
 
 
-def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str | Path | None = None) -> Path:
+def model_exchange_solver(scenario: Scenario, relative_tolerance: float = 1e-6,
+                          absolute_tolerance: float | None = None,
+                          step_sizes: tuple[float, float, float] | None = None) -> VariableStepSolver:
+    """OMSimulator's CVODE for a Model Exchange archive of `scenario`: `absolute_tolerance` defaults to
+    `relative_tolerance`, `step_sizes` (initial, minimum, maximum) to fractions of the scenario's step
+    (INITIAL_STEP_FRACTION, MINIMUM_STEP_FRACTION, 1)."""
+    if step_sizes is None:
+        h = scenario.step_size
+        if h is None:
+            raise ScenarioError(f"{scenario.path}: no step size (osp:FixedStepAlgorithm) to derive OMSimulator's "
+                                "step sizes from: give step_sizes=(initial, minimum, maximum)")
+        step_sizes = (float(f"{INITIAL_STEP_FRACTION * h:.3g}"), float(f"{MINIMUM_STEP_FRACTION * h:.3g}"), h)
+    initial, minimum, maximum = step_sizes
+    return VariableStepSolver(relative_tolerance=relative_tolerance,
+                              absolute_tolerance=relative_tolerance if absolute_tolerance is None else absolute_tolerance,
+                              initial_step=initial, minimum_step=minimum, maximum_step=maximum)
+
+
+def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str | Path | None = None, *,
+             model_exchange: bool = False, relative_tolerance: float = 1e-6, absolute_tolerance: float | None = None,
+             step_sizes: tuple[float, float, float] | None = None) -> Path:
     """Write the scenario (an .ssd file or its folder, or a parsed Scenario whose component sources
-    are used) with its FMUs to the archive `output`. With `fmu_dir`, FMUs are taken from there."""
+    are used) with its FMUs to the archive `output`. With `fmu_dir`, FMUs are taken from there.
+
+    With `model_exchange`, the System's OpenModelica annotation (the .ssd's own, if any, is replaced) asks
+    OMSimulator for a strongly coupled system: `model_exchange_solver(scenario, relative_tolerance,
+    absolute_tolerance, step_sizes)`. Without it the tolerances and step sizes are not used and the
+    archive is what it always was."""
     if isinstance(scenario, Scenario):
         parsed, ssd = scenario, scenario.path
     else:
         ssd = resolve_path(scenario)
         parsed = read_scenario(ssd, fmu_dir=fmu_dir)  # checks the files before packing
+    solver = (model_exchange_solver(parsed, relative_tolerance, absolute_tolerance, step_sizes)
+              if model_exchange else None)
     tree = ET.ElementTree(parse(ssd, insert_comments=True))      # any encoding; written as UTF-8
     fmus: dict[str, Path] = {}
     for el in tree.getroot().iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
@@ -34,7 +74,7 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
             raise ScenarioError(f"{ssd}: two different FMUs are named {comp.source.name}")
         fmus[target] = comp.source
         el.set("source", target)
-    _make_portable(tree.getroot(), parsed.step_size)
+    _make_portable(tree.getroot(), parsed.step_size, solver)
     ssvs = {src for c in parsed.components for src in c.parameter_sources}
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -48,13 +88,28 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
     return output
 
 
-def _make_portable(root: ET.Element, step_size: float | None) -> None:
+def _make_portable(root: ET.Element, step_size: float | None, solver: VariableStepSolver | None = None) -> None:
     """Identifier names for the model and its System; OpenModelica's fixed-step annotation first in
-    the System's annotations (added when the .ssd has none and a step size is known)."""
+    the System's annotations (added when the .ssd has none and a step size is known). With `solver`,
+    its variable-step annotation replaces every OpenModelica annotation of the System, first."""
     root.set("name", identifier(root.get("name") or "model"))
     system = root.find("ssd:System", NS)
     system.set("name", identifier(system.get("name") or root.get("name")))
     annotations = system.find("ssd:Annotations", NS)
+    if solver is not None:
+        if annotations is None:
+            annotations = ET.SubElement(system, f"{{{NS['ssd']}}}Annotations")
+        old = [a for a in annotations.findall("ssc:Annotation", NS) if a.get("type") == OMS_ANNOTATION]
+        tail = old[-1].tail if old else None
+        for a in old:
+            annotations.remove(a)
+        xml = f'<root xmlns:ssc="{NS["ssc"]}" xmlns:oms="{NS["oms"]}">{"".join(oms_solver_annotation(solver))}</root>'
+        new = ET.fromstring(xml)[0]
+        if annotations.text and annotations.text.strip() == "":       # the .ssd is indented: so is the annotation
+            ET.indent(new, space="  ", level=annotations.text.count(" ") // 2)
+            new.tail = tail or annotations.text
+        annotations.insert(0, new)
+        return
     has_oms = annotations is not None and any(a.get("type") == OMS_ANNOTATION
                                               for a in annotations.findall("ssc:Annotation", NS))
     if has_oms or step_size is None:

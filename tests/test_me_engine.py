@@ -352,3 +352,20 @@ def test_interfaces_are_refused_naming_the_fmu(make, tmp_path):
         simulate(scenario, **ME)
     with pytest.raises(ScenarioError, match=r"ToyMEDahlquist\.fmu: component 'd' is a Model-Exchange-only FMU"):
         simulate(scenario)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_the_plants_boundary_is_the_reason_given_when_the_controller_fails_there(fmu_dir, solver):
+    """The MEMS loop driven into the closed gap (p_0 = -2.35e-8 N s, the gap closes at 1.648e-5 s). Radau's
+    stages reach q = -c0 before the step's event indicators are compared, and the controller's law (a
+    division by q + c0) fails there: the run must still end with the plant's reason, the gap, and keep
+    the controller's failure as what came before it. Without the diagnosis Radau named only the controller."""
+    from tests.helpers import scenario
+    s = scenario("mems_regulation_Dd-1", fmu_dir)
+    with pytest.raises(SimulationError) as info:
+        simulate(s, start_values={"plant.p_0": -2.35e-8}, interface_type="ModelExchange", solver=solver, rtol=1e-9)
+    message = str(info.value)
+    assert message.startswith("MEMS.fmu: component 'plant'") and "the capacitor gap has closed" in message, message
+    t = float(re.search(r"at t = ([0-9.e+-]+) s", message).group(1))
+    assert abs(t - 1.6479e-5) < 1e-9, message
+    assert info.value.result is not None and info.value.result.rows[0][0] == 0.0

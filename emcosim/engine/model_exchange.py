@@ -14,6 +14,7 @@ The engine knows no model: any FMI 2.0 Model Exchange FMUs wired by an SSP scena
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
 import time
@@ -200,7 +201,8 @@ class ModelExchangeSimulation:
         result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
                            for m in inst.messages if m.startswith("[warning]")]
         try:
-            _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps, next_event)
+            with _event_reason(system):
+                _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps, next_event)
         except SimulationError as exc:
             exc.result = result
             raise
@@ -324,6 +326,22 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
         result.append(t, system.row())
     if progress is not None:
         progress(1.0)
+
+
+@contextlib.contextmanager
+def _event_reason(system: System):
+    """An FMU without event indicators failing at a point where one with indicators has its event (a
+    controller evaluated on the plant's domain boundary, where its law is not defined: Radau's stages land
+    there before the step's indicators are compared) ends the run with that FMU's reason, if it gives one."""
+    try:
+        yield
+    except SimulationError as exc:
+        if type(exc) is not SimulationError:                   # Ctrl-C, SIGTERM: not the FMUs' doing
+            raise
+        reason = system.event_reason()
+        if reason is None:
+            raise
+        raise SimulationError(f"{reason} (before it: {exc})") from None
 
 
 def _locate(system: System, dense, t_a: float, t_b: float, i: int) -> float:

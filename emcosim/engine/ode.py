@@ -111,6 +111,7 @@ class System:
         self.engine_time = 0.0                       # inside this object's methods the solver and the run call
         self.time: float | None = None               # the time the FMUs were last set to (fmi2SetTime)
         self.discarded = ""                          # the last fmi2Discard of fmi2GetDerivatives
+        self.failed: Instance | None = None          # the instance whose call failed last
 
     # ---- FMI calls ----------------------------------------------------------------------------------
     def call(self, unit: _Unit, function: str, *args) -> int:
@@ -118,6 +119,7 @@ class System:
         status = unit.calls[function](unit.inst.component, *args)
         self.fmu_time += time.perf_counter() - tic
         if status > 2 or (status == 2 and function != "fmi2GetDerivatives"):
+            self.failed = unit.inst
             raise SimulationError(f"{unit.inst.path.name}: component '{unit.inst.name}' failed in {function} "
                                   f"(status {STATUS[status] if status < 6 else status}) at t = "
                                   f"{self.time if self.time is not None else float('nan'):.9g} s{last_message(unit.inst)}")
@@ -142,7 +144,7 @@ class System:
         try:
             resolve_values(self.plan, self.slots, record)
         except FMICallException as exc:
-            inst = exc.transfer.inst
+            inst = self.failed = exc.transfer.inst
             raise SimulationError(f"{inst.path.name}: component '{inst.name}' failed in {exc.function} at "
                                   f"t = {t:.9g} s{last_message(inst)}") from None
         except NonFinite as exc:
@@ -228,6 +230,22 @@ class System:
         for unit in self.units:
             self.call(unit, "fmi2EnterContinuousTimeMode")
         return changed, next_time
+
+    def event_reason(self) -> SimulationError | None:
+        """After an FMU failed at a point where an event indicator changed domain (a controller evaluated
+        on the plant's domain boundary): the error of the first FMU with event indicators that refuses
+        its event there (fmi2EnterEventMode, fmi2NewDiscreteStates at the states already set), or None.
+        Only a diagnosis: the run ends either way, and that FMU's reason names the cause. None if the
+        failure was one of theirs (an FMU in its error state refuses every call)."""
+        if self.failed is None or any(u.inst is self.failed for u in self.with_indicators):
+            return None
+        for unit in self.with_indicators:
+            try:
+                self.call(unit, "fmi2EnterEventMode")
+                self.call(unit, "fmi2NewDiscreteStates", ctypes.byref(fmi2EventInfo()))
+            except SimulationError as exc:
+                return exc
+        return None
 
     def discrete_states(self, t: float) -> tuple[bool, float | None]:
         """fmi2NewDiscreteStates of every FMU until none needs another round (values resolved between)."""

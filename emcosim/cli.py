@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import difflib
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -156,6 +157,19 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("--step-size", type=float, help="fixed step of the container (default: the scenario's)")
     export.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
     export.set_defaults(func=cmd_export)
+
+    pack = sub.add_parser("pack", help="pack a scenario with its FMUs into a self-contained SSP archive (.ssp) "
+                          "for other SSP tools", parents=[ssp])
+    pack.add_argument("scenario")
+    pack.add_argument("-o", "--output", required=True, help="the .ssp to write")
+    pack.add_argument("--model-exchange", action="store_true",
+                      help="ask OMSimulator for a strongly coupled system: every FMU as Model Exchange under its "
+                           "CVODE (default: Co-Simulation at the scenario's fixed step)")
+    pack.add_argument("--rtol", type=float, default=1e-6,
+                      help="with --model-exchange: CVODE's relative and absolute tolerance in the archive "
+                           "(default 1e-6; OMSimulator's --tolerance replaces it)")
+    pack.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
+    pack.set_defaults(func=cmd_pack)
 
     info = sub.add_parser("info", help="list the scenarios and their FMUs with their variables", parents=[ssp])
     info.add_argument("scenario", nargs="*", help="scenarios to describe (default: all in scenarios/)")
@@ -435,6 +449,36 @@ def cmd_export(args) -> int:
     scenario = _read(args.scenario, args.fmu_dir, args)
     export_container(scenario, Path(args.output), step_size=args.step_size)
     print(f"{scenario.name}: container FMU written to {args.output}")
+    return 0
+
+
+def cmd_pack(args) -> int:
+    from .engine import tempdirs
+    from .engine.outputs import check_destination, write_file
+    from .engine.ssp import model_exchange_solver, pack_ssp
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".ssp":
+        raise ScenarioError(f"{out}: an SSP archive is named NAME.ssp")
+    check_destination(out)                        # before the FMUs are read and zipped
+    scenario = _read(args.scenario, args.fmu_dir, args)
+    if not 0 < args.rtol < 1:
+        raise ScenarioError(f"--rtol {args.rtol:g}: must be a number between 0 and 1 (a relative error)")
+    if args.model_exchange:
+        try:
+            model_exchange_solver(scenario, args.rtol)   # the step sizes checked before anything is packed
+        except ValueError as exc:
+            raise ScenarioError(str(exc)) from None
+    work = tempdirs.make("pack")
+    try:
+        packed = pack_ssp(scenario, work / out.name, model_exchange=args.model_exchange, relative_tolerance=args.rtol)
+        with open(packed, "rb") as f:
+            data = f.read()
+        write_file(out, lambda f: f.write(data))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    kind = "Model Exchange under OMSimulator's CVODE" if args.model_exchange else "Co-Simulation"
+    print(f"{scenario.name}: SSP archive ({kind}) written to {out}")
     return 0
 
 

@@ -183,3 +183,48 @@ def test_bad_solver_settings_are_refused(tracking, tmp_path, kwargs):
 def test_solver_method_is_checked():
     with pytest.raises(ValueError, match="cvode"):
         VariableStepSolver(1e-6, 1e-6, 1e-9, 1e-15, 1e-3, method="rk4")
+
+
+def _cli(args: list[str]) -> tuple[int, str]:
+    import subprocess
+    import sys
+    proc = subprocess.run([sys.executable, "-m", "emcosim.cli", *args], capture_output=True, text=True, timeout=300,
+                          cwd=ROOT)
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+def test_pack_on_the_command_line_writes_the_model_exchange_archive(fmu_dir, tmp_path):
+    """`emcosim pack NAME -o x.ssp --model-exchange --rtol R`: the archive pack_ssp writes (the annotation
+    with R), and it runs in our engine as Model Exchange like its scenario folder."""
+    out = tmp_path / "m.ssp"
+    rc, text = _cli(["pack", "maglev_regulation_prop2", "-o", str(out), "--model-exchange", "--rtol", "1e-8",
+                     "--fmu-dir", str(fmu_dir)])
+    assert rc == 0 and "Model Exchange" in text, text
+    attrs = _solver(_ssd(out))
+    assert float(attrs["relativeTolerance"]) == 1e-8 and float(attrs["absoluteTolerance"]) == 1e-8
+    assert float(attrs["maximumStepSize"]) == 0.04                  # the scenario's step
+    folder = read_scenario(ROOT / "scenarios" / "maglev_regulation_prop2", fmu_dir=fmu_dir)
+    a = simulate(read_scenario(out), stop_time=1.0, interface_type="ModelExchange")
+    b = simulate(folder, stop_time=1.0, interface_type="ModelExchange")
+    assert np.array_equal(np.array(a.rows), np.array(b.rows))
+    rc, text = _cli(["pack", "maglev_regulation_prop2", "-o", str(tmp_path / "c.ssp"), "--fmu-dir", str(fmu_dir)])
+    assert rc == 0 and _oms_annotations(_ssd(tmp_path / "c.ssp")) and not _ssd(tmp_path / "c.ssp").findall(
+        ".//oms:VariableStepSolver", NS)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["-o", "{tmp}/x.zip"], "is named NAME.ssp"),
+    (["-o", "{tmp}/x.ssp", "--model-exchange", "--rtol", "2"], "--rtol 2: must be a number between 0 and 1"),
+    (["-o", "{tmp}/x.ssp", "--model-exchange", "--rtol", "0"], "--rtol 0: must be a number between 0 and 1"),
+    (["-o", "{tmp}/link.ssp"], "symbolic link"),
+    (["-o", "{tmp}/missing/x.ssp"], "missing"),
+])
+def test_pack_refuses_bad_arguments_in_one_line_and_writes_nothing(fmu_dir, tmp_path, args, words):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine\n")
+    (tmp_path / "link.ssp").symlink_to(victim)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    rc, text = _cli(["pack", "maglev_regulation_prop2", "--fmu-dir", str(fmu_dir),
+                     *[a.replace("{tmp}", str(tmp_path)) for a in args]])
+    assert rc == 1 and words in text and "Traceback" not in text, text
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and victim.read_text() == "mine\n"

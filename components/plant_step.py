@@ -2,9 +2,11 @@
 
 Between two communication points t_k and t_k + h a co-simulation master either holds the input
 constant or, through fmi2SetRealInputDerivatives, hands a polynomial
-    u(t_k + tau) = u + u' tau + u'' tau^2 / 2,      0 <= tau <= h,
+    u(t_k + tau) = u + u' tau + u'' tau^2 / 2 + sum_{k >= 3} u^(k) tau^k / k!,      0 <= tau <= h,
 and the plant integrates eq. (open-loop elecmech), eta' = f(eta, u(t)), over the step from its
-current state. (The held input is the polynomial with u' = u'' = 0.)
+current state. (The held input is the polynomial with u' = u'' = 0.) FMI 2.0 lets a master send any
+order; the quadratic (the orders a master usually sends) has a path of its own, any higher degree
+(`advance`'s `higher`) goes through `input_value`.
 
 The MEMS switch is extremely stiff: its electrical time constant 1/alpha = r_e c1 (q + c0) is ~1e-10 s
 near the rest position and ~2e-7 s at the tracking scenario's q ~ 0.06 m; its mechanics ~1e-4 s.
@@ -13,7 +15,7 @@ Two things make a communication step both cheap and accurate:
 1. The electrical layer. The electrical equation is linear in x_e for fixed q,
        x_e' = A(q) x_e + G_e u(t),   A(q) = (J_e - R_e) Psi(q)    (n_e = 1: A = -alpha, alpha > 0),
    so x_e = x_s + delta splits exactly into a part x_s that starts on the slow manifold
-       x_s(0) = (G_e / alpha) (u - u'/alpha + u''/alpha^2) + G_e u alpha' / alpha^3
+       x_s(0) = (G_e / alpha) (u - u'/alpha + u''/alpha^2 - u^(3)/alpha^3 + ...) + G_e u alpha' / alpha^3
    (alpha' = d alpha/dt along the motion) and a layer delta' = -alpha(q(t)) delta that decays from
    delta_0 = x_e - x_s(0) as delta_0 exp(-alpha tau - alpha' tau^2 / 2). The layer acts on the
    mechanics only through the extra force -1/2 Psi'(q) (2 x_s delta + delta^2) of the p-row, whose
@@ -45,7 +47,7 @@ it to. Any other plant with three states uses `EMPlant.f` and `EMPlant.jacobian`
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -127,6 +129,44 @@ def _moments(beta: float, h: float) -> tuple[float, float, float, float]:
     ib = 1.0 / beta
     return ((1.0 - E) * ib, (1.0 - E * (1.0 + bh)) * ib ** 2, (2.0 - E * (2.0 + bh * (2.0 + bh))) * ib ** 3,
             (6.0 - E * (6.0 + bh * (6.0 + bh * (3.0 + bh)))) * ib ** 4)
+
+
+def _power_over_factorial(tau: float, m: int) -> float:
+    """tau^m / m! for tau >= 0 and an integer m >= 0 (inf where it overflows; m may be large: the
+    factorial is never formed beyond 20!)."""
+    if m == 0:
+        return 1.0
+    if tau == 0.0:
+        return 0.0
+    try:
+        if m <= 20:
+            return tau ** m / math.factorial(m)
+        return math.exp(m * math.log(tau) - math.lgamma(m + 1.0))
+    except OverflowError:
+        return math.inf
+
+
+def input_value(terms: Sequence[tuple[int, float]], tau: float, shift: int = 0) -> float:
+    """d^shift/dtau^shift of the input polynomial u(tau) = sum_k c_k tau^k / k! at tau >= 0, from its
+    terms (k, c_k) (orders without a term are 0)."""
+    total = 0.0
+    for k, c in terms:
+        if k >= shift and c != 0.0:
+            total += c * _power_over_factorial(tau, k - shift)
+    return total
+
+
+def input_terms(u: float, du: float, d2u: float, higher: Mapping[int, float] | None) -> tuple[tuple[int, float], ...]:
+    """The terms (k, u^(k)) of the input polynomial: orders 0, 1, 2 and those of `higher` (orders >= 3);
+    ValueError naming an order that is not an integer >= 3 or whose value is not finite."""
+    terms = [(0, u), (1, du), (2, d2u)]
+    for k, c in sorted((higher or {}).items()):
+        if isinstance(k, bool) or not isinstance(k, int) or k < 3:
+            raise ValueError(f"input derivative order {k!r} is not an integer >= 3 (orders 1 and 2 are du, d2u)")
+        if not math.isfinite(c):
+            raise ValueError(f"input derivative d^{k}u/dt^{k} = {c} is not finite")
+        terms.append((k, float(c)))
+    return tuple(terms)
 
 
 class _ScalarModel:
@@ -266,9 +306,10 @@ class PlantStepper:
 
     # ---- the electrical layer ------------------------------------------------------------------
     def layer(self, q: float, p: float, x: float, u: float, h: float, du: float = 0.0,
-              d2u: float = 0.0) -> tuple[float, float, float, float, bool]:
+              d2u: float = 0.0, higher: Sequence[tuple[int, float]] = ()) -> tuple[float, float, float, float, bool]:
         """(q_0, p_0, x_s(0), delta(h), applied): the electrical layer of a step of size h taken in closed
         form (module doc; docs/derivations.md, "Plant step"), or (q, p, x, 0, False) when it does not apply.
+        `higher`: the terms (k, u^(k)) of the input polynomial of orders k >= 3.
 
         The smooth part of the step starts from (q_0, p_0, x_s(0)); delta(h) is what is left of the layer
         at the end of the step, to be added to x_e there."""
@@ -283,6 +324,16 @@ class PlantStepper:
         # the slow manifold x_s of the electrical row and its rate, to first order in 1/alpha
         v = J_qp * p                                            # q'
         alpha1 = -F_xx * dPsi * v                               # alpha' along the motion
+        if higher:
+            # the slow manifold's series for a polynomial input, w - w'/alpha + w''/alpha^2 - ... with
+            # w = G_e u / alpha (exact for a frozen alpha): the orders k >= 3 enter through the u'' slot,
+            # d2u + sum_k (-1/alpha)^(k-2) u^(k)
+            try:
+                d2u = d2u + sum(c * (-ia) ** (k - 2) for k, c in higher)
+            except OverflowError:
+                return q, p, x, 0.0, False
+            if not math.isfinite(d2u):
+                return q, p, x, 0.0, False
         x_s = g * ia * (u - ia * (du - ia * d2u) + u * alpha1 * ia * ia)
         x_s1 = g * ia * (du - ia * d2u - u * alpha1 * ia)
         d0 = x - x_s
@@ -329,9 +380,10 @@ class PlantStepper:
         return q + dq, p + dp, x_s, d0 * E, True
 
     # ---- one communication step ------------------------------------------------------------------
-    def step(self, eta: Sequence[float], u, h: float, du: float = 0.0, d2u: float = 0.0) -> np.ndarray:
+    def step(self, eta: Sequence[float], u, h: float, du: float = 0.0, d2u: float = 0.0,
+             higher: Mapping[int, float] | None = None) -> np.ndarray:
         """The state after h seconds from state eta with the input u(t + tau) = u + du tau + d2u tau^2 / 2
-        (du = d2u = 0: the input held).
+        (du = d2u = 0: the input held), plus sum_k higher[k] tau^k / k! for the orders k >= 3 in `higher`.
 
         Raises ValueError for a non-finite or non-positive h, a non-finite u, du, d2u or eta; DomainError
         (with the plant's reason) if the state leaves the domain; StepFailure if the integration fails.
@@ -339,27 +391,43 @@ class PlantStepper:
         """
         u = float(np.asarray(u, dtype=float).reshape(-1)[0])
         q, p, x = (float(v) for v in eta)
-        return np.array(self.advance(q, p, x, u, float(h), float(du), float(d2u)))
+        return np.array(self.advance(q, p, x, u, float(h), float(du), float(d2u), higher))
 
     def advance(self, q: float, p: float, x: float, u: float, h: float, du: float = 0.0,
-                d2u: float = 0.0) -> tuple[float, float, float]:
-        """`step` on floats: (q, p, x_e) after h seconds with the input u + du tau + d2u tau^2 / 2.
-        (Python floats: numpy scalars work but make the arithmetic about twice as slow.)"""
+                d2u: float = 0.0, higher: Mapping[int, float] | None = None) -> tuple[float, float, float]:
+        """`step` on floats: (q, p, x_e) after h seconds with the input u + du tau + d2u tau^2 / 2
+        (+ the orders k >= 3 of `higher`: {k: d^k u/dt^k}). (Python floats: numpy scalars work but make
+        the arithmetic about twice as slow.)"""
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"communication step size h = {h} must be finite and > 0")
         if not (math.isfinite(u) and math.isfinite(du) and math.isfinite(d2u)):
             bad = next(f"{n} = {v}" for n, v in (("input u", u), ("input derivative du/dt", du),
                                                    ("input derivative d2u/dt2", d2u)) if not math.isfinite(v))
             raise ValueError(f"{bad} is not finite")
+        terms = self._higher_terms(u, du, d2u, higher, h) if higher else None
         self._check(q, p, x)
-        q, p, x, x_left, self.layer_applied = self.layer(q, p, x, u, h, du, d2u)
-        y, h_next, n_ok, n_rej = self._integrate(q, p, x, u, du, d2u, h)
+        q, p, x, x_left, self.layer_applied = self.layer(q, p, x, u, h, du, d2u, terms[3:] if terms else ())
+        y, h_next, n_ok, n_rej = self._integrate(q, p, x, u, du, d2u, h, terms)
         self.h_next, self.n_substeps, self.n_rejected = h_next, n_ok, n_rej
         if x_left:
             y = (y[0], y[1], y[2] + x_left)
         return y
 
-    def _integrate(self, q, p, x, u, du, d2u, h):
+    @staticmethod
+    def _higher_terms(u: float, du: float, d2u: float, higher: Mapping[int, float],
+                      h: float) -> tuple[tuple[int, float], ...] | None:
+        """The polynomial's terms (`input_terms`), or None when every order >= 3 is 0 (the quadratic path);
+        ValueError if the polynomial overflows over the step."""
+        terms = input_terms(u, du, d2u, higher)
+        if all(c == 0.0 for _, c in terms[3:]):
+            return None
+        bound = sum(abs(c) * _power_over_factorial(h, k) for k, c in terms)
+        if not math.isfinite(bound):
+            raise ValueError(f"the input polynomial of orders up to {terms[-1][0]} overflows over the step "
+                             f"h = {h:g} s (sum |u^(k)| h^k / k! is not finite)")
+        return terms
+
+    def _integrate(self, q, p, x, u, du, d2u, h, terms=None):
         sq, sp, sx = self.scale
         iq, ip, ix = 1.0 / sq, 1.0 / sp, 1.0 / sx
         rtol = self.rtol
@@ -376,9 +444,13 @@ class PlantStepper:
             last = hs >= remaining * (1.0 - 1e-9)
             hh = remaining if last else hs
             try:
-                # the input polynomial re-expanded at the substep's start t
-                y_new, err = rodas4(model, y, u + t * (du + 0.5 * t * d2u), du + t * d2u, d2u, hh,
-                                    iq, ip, ix, sq, sp, sx)
+                if terms is None:                     # the quadratic re-expanded at the substep's start t
+                    y_new, err = rodas4(model, y, u + t * (du + 0.5 * t * d2u), du + t * d2u, d2u, hh,
+                                        iq, ip, ix, sq, sp, sx)
+                else:                                 # any degree: its values at the stage times
+                    stages = tuple(input_value(terms, t + a * hh) for a in _STAGE_POINTS)
+                    y_new, err = rodas4(model, y, input_value(terms, t), input_value(terms, t, 1), 0.0, hh,
+                                        iq, ip, ix, sq, sp, sx, stages)
                 e0, e1, e2 = err
                 n0 = rtol * (1.0 + max(abs(y[0]), abs(y_new[0])))
                 n1 = rtol * (1.0 + max(abs(y[1]), abs(y_new[1])))
@@ -411,8 +483,9 @@ class PlantStepper:
                 raise StepFailure(f"{plant.name}: more than {self.max_substeps} substeps in a step of {h:.6g} s "
                                   f"(reached t + {t:.6g} s)")
 
-    def _rodas4_dense(self, model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx):
-        """One RODAS4 step in scaled variables, dense Jacobian, input u + du tau + d2u tau^2 / 2:
+    def _rodas4_dense(self, model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx, stages=None):
+        """One RODAS4 step in scaled variables, dense Jacobian, input u + du tau + d2u tau^2 / 2 (or, given
+        `stages`, the input's values at the stage times _STAGE_POINTS h; du its rate at the start):
         (y_new, error estimate)."""
         f0, jac = model.f_jac(y[0] * sq, y[1] * sp, y[2] * sx, u)
         gi = 1.0 / (h * _GAMMA)
@@ -433,7 +506,8 @@ class PlantStepper:
                     c1 += c_ * k1
                     c2 += c_ * k2
                 tau = _STAGE_TIME[i] * h
-                fi = model.f(Y0 * sq, Y1 * sp, Y2 * sx, u + tau * (du + 0.5 * tau * d2u))
+                ui = u + tau * (du + 0.5 * tau * d2u) if stages is None else stages[min(i, 4) - 1]
+                fi = model.f(Y0 * sq, Y1 * sp, Y2 * sx, ui)
                 r = (fi[0] * iq + hi * c0, fi[1] * ip + hi * c1, fi[2] * ix + hi * c2 + _STAGE_GAMMA[i] * ft)
             Ks.append(_solve_dense(lu, r))
         K6 = Ks[5]
@@ -444,12 +518,14 @@ class PlantStepper:
 (_a21,), (_a31, _a32), (_a41, _a42, _a43), (_a51, _a52, _a53, _a54), (_a61, _a62, _a63, _a64, _a65) = _A[1:]
 (_c21,), (_c31, _c32), (_c41, _c42, _c43), (_c51, _c52, _c53, _c54), (_c61, _c62, _c63, _c64, _c65) = _C[1:]
 _, _t2, _t3, _t4, _, _ = _STAGE_TIME
+_STAGE_POINTS = (_t2, _t3, _t4, 1.0)        # the stage times after 0 (stages 5 and 6 share t + h)
 _d1, _d2, _d3, _d4, _, _ = _STAGE_GAMMA
 
 
-def _rodas4_structured(model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx):
+def _rodas4_structured(model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx, stages=None):
     """One RODAS4 step in scaled variables for J = [[0, a, 0], [b, c, d], [e, 0, k]] (a OneDOFPlant),
-    input u + du tau + d2u tau^2 / 2: (y_new, error estimate). The same method as
+    input u + du tau + d2u tau^2 / 2 (or, given `stages`, the input's values at the stage times
+    _STAGE_POINTS h; du its rate at the start): (y_new, error estimate). The same method as
     `PlantStepper._rodas4_dense`, with the six stages written out (a loop over the coefficient table
     would cost more than the arithmetic) and the linear solves done by elimination."""
     f0, (J_qp, J_pq, J_pp, J_px, J_xq, J_xx) = model.f_jac(y[0] * sq, y[1] * sp, y[2] * sx, u)
@@ -465,27 +541,28 @@ def _rodas4_structured(model, y, u, du, d2u, h, iq, ip, ix, sq, sp, sx):
     y0, y1, y2 = y
     # stage 1
     p0, p1, p2 = _solve_structured(lu, (f0[0] * iq, f0[1] * ip, f0[2] * ix + _d1 * ft))
+    if stages is None:
+        t2, t3, t4 = _t2 * h, _t3 * h, _t4 * h
+        stages = (u + t2 * (du + 0.5 * t2 * d2u), u + t3 * (du + 0.5 * t3 * d2u), u + t4 * (du + 0.5 * t4 * d2u),
+                  u + h * (du + 0.5 * h * d2u))
+    u2, u3, u4, u1 = stages
     # stage 2
-    tau = _t2 * h
-    fi = f((y0 + _a21 * p0) * sq, (y1 + _a21 * p1) * sp, (y2 + _a21 * p2) * sx, u + tau * (du + 0.5 * tau * d2u))
+    fi = f((y0 + _a21 * p0) * sq, (y1 + _a21 * p1) * sp, (y2 + _a21 * p2) * sx, u2)
     q0, q1, q2 = _solve_structured(lu, (fi[0] * iq + hi * _c21 * p0, fi[1] * ip + hi * _c21 * p1,
                                         fi[2] * ix + hi * _c21 * p2 + _d2 * ft))
     # stage 3
-    tau = _t3 * h
     fi = f((y0 + _a31 * p0 + _a32 * q0) * sq, (y1 + _a31 * p1 + _a32 * q1) * sp,
-           (y2 + _a31 * p2 + _a32 * q2) * sx, u + tau * (du + 0.5 * tau * d2u))
+           (y2 + _a31 * p2 + _a32 * q2) * sx, u3)
     r0, r1, r2 = _solve_structured(lu, (fi[0] * iq + hi * (_c31 * p0 + _c32 * q0),
                                         fi[1] * ip + hi * (_c31 * p1 + _c32 * q1),
                                         fi[2] * ix + hi * (_c31 * p2 + _c32 * q2) + _d3 * ft))
     # stage 4
-    tau = _t4 * h
     fi = f((y0 + _a41 * p0 + _a42 * q0 + _a43 * r0) * sq, (y1 + _a41 * p1 + _a42 * q1 + _a43 * r1) * sp,
-           (y2 + _a41 * p2 + _a42 * q2 + _a43 * r2) * sx, u + tau * (du + 0.5 * tau * d2u))
+           (y2 + _a41 * p2 + _a42 * q2 + _a43 * r2) * sx, u4)
     s0, s1, s2 = _solve_structured(lu, (fi[0] * iq + hi * (_c41 * p0 + _c42 * q0 + _c43 * r0),
                                         fi[1] * ip + hi * (_c41 * p1 + _c42 * q1 + _c43 * r1),
                                         fi[2] * ix + hi * (_c41 * p2 + _c42 * q2 + _c43 * r2) + _d4 * ft))
     # stage 5 (at t + h, gamma_5 = 0)
-    u1 = u + h * (du + 0.5 * h * d2u)
     fi = f((y0 + _a51 * p0 + _a52 * q0 + _a53 * r0 + _a54 * s0) * sq,
            (y1 + _a51 * p1 + _a52 * q1 + _a53 * r1 + _a54 * s1) * sp,
            (y2 + _a51 * p2 + _a52 * q2 + _a53 * r2 + _a54 * s2) * sx, u1)
@@ -525,10 +602,10 @@ def _solve_dense(lu, r):
 
 def simulate_polynomial(plant: EMPlant, eta0, h: float, inputs, rtol: float = 1e-11) -> np.ndarray:
     """Reference solution: the states at t = k h (k = 0..len(inputs)) for the input
-    u(k h + tau) = u_k + u'_k tau + u''_k tau^2 / 2 on [k h, (k+1) h], where inputs[k] is u_k or a tuple
-    (u_k[, u'_k[, u''_k]]); each step integrated by scipy's Radau with the exact Jacobian on states
-    scaled by `nominal_scale`, to relative and absolute (scaled) tolerance rtol. Raises DomainError
-    on leaving the domain."""
+    u(k h + tau) = u_k + u'_k tau + u''_k tau^2 / 2 + ... on [k h, (k+1) h], where inputs[k] is u_k or a
+    tuple (u_k[, u'_k[, u''_k[, ...]]]) of the polynomial's derivatives at k h, of any length; each step
+    integrated by scipy's Radau with the exact Jacobian on states scaled by `nominal_scale`, to relative
+    and absolute (scaled) tolerance rtol. Raises DomainError on leaving the domain."""
     from scipy.integrate import solve_ivp
 
     s = nominal_scale(plant)
@@ -536,8 +613,14 @@ def simulate_polynomial(plant: EMPlant, eta0, h: float, inputs, rtol: float = 1e
     plant.check_state(eta)
     out = [eta]
     for k, row in enumerate(inputs):
-        u0, u1, u2 = (tuple(float(v) for v in np.atleast_1d(row)) + (0.0, 0.0))[:3]
-        sol = solve_ivp(lambda t, xi: plant.f(xi * s, np.array([u0 + t * (u1 + 0.5 * t * u2)])) / s, (0.0, h),
+        row = tuple(float(v) for v in np.atleast_1d(row))
+        u0, u1, u2 = (row + (0.0, 0.0))[:3]
+        terms = tuple(enumerate(row))
+
+        def u_of(t: float) -> float:
+            return u0 + t * (u1 + 0.5 * t * u2) if len(terms) <= 3 else input_value(terms, t)
+
+        sol = solve_ivp(lambda t, xi: plant.f(xi * s, np.array([u_of(t)])) / s, (0.0, h),
                         eta / s, method="Radau", rtol=rtol, atol=rtol,
                         jac=lambda t, xi: plant.jacobian(xi * s) * s[None, :] / s[:, None])
         if not sol.success:

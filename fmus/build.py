@@ -51,6 +51,9 @@ CHECKOUT = FMU_SOURCES.parent                                   # the repository
 STAMP = ".build-stamp.json"
 RECORD = "emcosim_fmu.txt"                     # read by the loader
 PYTHONFMU_LIBRARY = "libpythonfmu-export.so"   # the name the loader looks for beside itself
+# the SONAME of every FMU's loader: the copies loaded into one process find the first one by it and share
+# its lock around starting Python (fmus/emcosim_fmu_loader.c, "state of the process")
+LOADER_SONAME = "libemcosim_fmu_loader.so.1"
 OVERRIDE_VARIABLE = "EMCOSIM_FMU_PYTHON"
 
 FMUS = list(MODELS)                             # the model identifiers of the suite's FMUs
@@ -130,7 +133,8 @@ def compile_loader(work: Path) -> Path:
         shutil.copy2(_fmi_headers() / header, work / header)
     # -Wno-format-truncation: messages are cut at MESSAGE_SIZE on purpose
     command = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
-               "-Wno-format-truncation", "-Werror", "-I", ".", "-I", include, LOADER.name, "-o", "loader.so", "-ldl"]
+               "-Wno-format-truncation", "-Werror", f'-DLOADER_SONAME="{LOADER_SONAME}"', f"-Wl,-soname,{LOADER_SONAME}",
+               "-I", ".", "-I", include, LOADER.name, "-o", "loader.so", "-ldl"]
     run = subprocess.run(command, cwd=work, capture_output=True, text=True)
     if run.returncode != 0:
         raise BuildError(f"build.py: compiling {LOADER} failed:\n{' '.join(command)}\n{run.stderr}")

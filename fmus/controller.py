@@ -8,7 +8,8 @@ The controller is built by components.catalog.controller. u depends on the input
 inputs, without a one-step delay. doStep only checks that u could be computed.
 FMI 2.0 derivatives: the exact Jacobian of u with respect to the inputs (fmi2GetDirectionalDerivative)
 and du/dt by the chain rule from the input derivatives the master set (fmi2GetRealOutputDerivatives,
-order 1; an input without a derivative counts as constant), both from
+order 1; an input without a derivative counts as constant; derivatives of order 2 and above, which a
+master may send, are accepted and dropped: du/dt needs the first ones only), both from
 components.controller.Controller.u_derivative (complex step of the law).
 """
 from __future__ import annotations
@@ -35,7 +36,7 @@ class ControllerSlave(EMSlave):
     input_start: ClassVar[tuple[float, ...]]                    # q, p, x_e (and the jet, if tracking)
     # FMI 2.0 derivatives (hooks at the end of the class)
     can_interpolate_inputs = True                               # accepts input derivatives (for du/dt)
-    max_input_derivative_order = 1
+    input_derivative_orders_used = 1                            # any order accepted, orders >= 2 dropped
     max_output_derivative_order = 1
     provides_directional_derivative = True
 

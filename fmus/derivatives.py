@@ -7,6 +7,14 @@ a whole request at once) and `directional_derivative`; the capabilities are clas
 into modelDescription.xml. A derivative request (value references and orders) is checked once; a master
 repeats it at every communication point. Input derivatives are kept in `input_derivatives` for the next
 doStep only (a master sets them again for every step) and are part of the FMU state.
+
+Input derivative orders: FMI 2.0 has no attribute that declares up to which order an FMU that declares
+canInterpolateInputs takes them, and masters send what their sources give (OMSimulator with
+--inputExtrapolation: the source's maxOutputDerivativeOrder). So an FMU accepts every order >= 1 and
+uses what it needs (issue 26, item 9): `input_derivative_orders_used` orders are kept, higher ones are
+accepted and dropped (a controller that needs only first derivatives); None keeps every order (a plant
+integrates the whole polynomial). `max_input_derivative_order` refuses orders above it with fmi2Error,
+as an FMU of another vendor may (the tests' toy FMUs do, to test masters against it); None refuses none.
 """
 from __future__ import annotations
 
@@ -21,15 +29,17 @@ class DerivativeFunctions:
     """The derivative functions of EMSlave (slave.py)."""
 
     can_interpolate_inputs: ClassVar[bool] = False          # canInterpolateInputs
-    max_input_derivative_order: ClassVar[int] = 0           # highest order fmi2SetRealInputDerivatives accepts
+    max_input_derivative_order: ClassVar[int | None] = None  # orders above are refused (None: none is refused)
+    input_derivative_orders_used: ClassVar[int | None] = None  # orders above are dropped (None: all are kept)
     max_output_derivative_order: ClassVar[int] = 0          # maxOutputDerivativeOrder
     provides_directional_derivative: ClassVar[bool] = False  # providesDirectionalDerivative
 
     def init_derivatives(self) -> None:
         self.input_derivatives: dict[str, dict[int, float]] = {}     # input name -> {order: value}
-        # validated derivative requests: (vrs, orders) -> names (set) or [(name, order)] (get); a master
-        # repeats the same request at every communication point, so it is checked once
-        self._derivative_sets: dict[tuple, list[str]] = {}
+        # validated derivative requests: (vrs, orders) -> names (set; None for an order that is dropped) or
+        # [(name, order)] (get); a master repeats the same request at every communication point, so it is
+        # checked once
+        self._derivative_sets: dict[tuple, list[str | None]] = {}
         self._derivative_gets: dict[tuple, list[tuple[str, int]]] = {}
         self._directional: dict[tuple, tuple[list[str], list[str]]] = {}
 
@@ -44,6 +54,8 @@ class DerivativeFunctions:
                 if total - total == 0.0:                              # all finite (else nan, or an overflow)
                     store = self.input_derivatives
                     for name, order, value in zip(names, orders, values):
+                        if name is None:                              # an order this FMU does not use
+                            continue
                         rates = store.get(name)
                         if rates is None:
                             store[name] = rates = {}
@@ -59,22 +71,35 @@ class DerivativeFunctions:
             if not self.can_interpolate_inputs:
                 return ERROR, f"{where}: this FMU does not interpolate inputs (canInterpolateInputs = false)"
             staged: dict[str, dict[int, float]] = {}
+            kept: list[str | None] = []
             for vr, order, value in zip(vrs, orders, values):
                 name = self._real_inputs.get(vr)
                 if name is None:
                     return ERROR, f"{where}: {self._describe_vr(vr)} is not a Real input"
-                if not 1 <= order <= self.max_input_derivative_order:
-                    return ERROR, (f"{where}: order {order} for input {name} is not in 1.."
-                                   f"{self.max_input_derivative_order}")
+                problem = self._order_problem(order)
+                if problem:
+                    return ERROR, f"{where}: order {order!r} for input {name} {problem}"
                 if not math.isfinite(value):
                     return ERROR, f"{where}: derivative of order {order} of input {name} = {value} is not finite"
-                staged.setdefault(name, {})[order] = float(value)
+                used = self.input_derivative_orders_used
+                kept.append(name if used is None or order <= used else None)
+                if kept[-1] is not None:
+                    staged.setdefault(name, {})[int(order)] = float(value)
             for name, derivatives in staged.items():
                 self.input_derivatives.setdefault(name, {}).update(derivatives)
-            self._derivative_sets[(tuple(vrs), tuple(orders))] = [self._real_inputs[vr] for vr in vrs]
+            self._derivative_sets[(tuple(vrs), tuple(orders))] = kept
             return OK, ""
         except Exception as exc:                                      # noqa: BLE001 - reported, never raised
             return ERROR, f"{where} failed: {type(exc).__name__}: {exc}"
+
+    def _order_problem(self, order) -> str:
+        """'' if fmi2SetRealInputDerivatives takes derivatives of this order, else why not."""
+        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+            return "is not an integer >= 1 (FMI 2.0: order 1 is the first derivative)"
+        top = self.max_input_derivative_order
+        if top is not None and order > top:
+            return f"is not in 1..{top}"
+        return ""
 
     def fmi2_get_real_output_derivatives(self, vrs: list[int], orders: list[int]) -> tuple[int, list[float], str]:
         """d^order(output)/dt^order at the current communication point, from the hook

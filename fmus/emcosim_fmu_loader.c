@@ -62,7 +62,7 @@
     X(PyGILState_Ensure) X(PyGILState_Release) X(PyImport_ImportModule) X(PyImport_GetModule)             \
     X(PyObject_GetAttrString) X(PyObject_CallFunctionObjArgs) X(PyObject_Str) X(Py_IncRef) X(Py_DecRef)   \
     X(PyErr_Fetch) X(PyErr_Occurred) X(PyErr_Clear) X(PyList_New) X(PyList_SetItem) X(PyList_Size)        \
-    X(PyList_GetItem) X(PyList_SetSlice) X(PyTuple_Size) X(PyTuple_GetItem) X(PyLong_FromLong)            \
+    X(PyList_GetItem) X(PyList_GetSlice) X(PyList_SetSlice) X(PyTuple_Size) X(PyTuple_GetItem) X(PyLong_FromLong)            \
     X(PyLong_FromUnsignedLong) X(PyLong_AsLong) X(PyFloat_FromDouble) X(PyFloat_AsDouble)                 \
     X(PyUnicode_FromString) X(PyUnicode_AsUTF8) X(PyBytes_FromStringAndSize) X(PyBytes_Size)              \
     X(PyBytes_AsString)
@@ -101,10 +101,29 @@ static struct {
 
 extern int __cxa_atexit(void (*function)(void *), void *argument, void *dso_handle);
 
+/* ---- state of the process: one for all emcosim FMUs -------------------------------------------------- */
+/* Every FMU ships its own copy of this library, and a host loads each copy on its own (RTLD_LOCAL): a
+ * static lock would be one per FMU, and two different FMUs instantiated at once from two threads started
+ * Python twice at the same time (issue 26, item 7: SIGSEGV, "double free or corruption"). Every copy has
+ * the same SONAME (build.py links it with -soname LOADER_SONAME), so dlopen(LOADER_SONAME, RTLD_NOLOAD)
+ * finds the copy loaded first in the process, whichever FMU it belongs to, and every copy uses that
+ * copy's `emcosim_fmu_process_v1`. The dynamic linker serializes dlopen and keeps its list of loaded
+ * objects in load order, so all copies agree on the first one; the handle taken from another copy keeps
+ * that copy loaded. A copy of an older build (without the SONAME) keeps its own lock. */
+#ifndef LOADER_SONAME
+#error "LOADER_SONAME must be defined (build.py passes -DLOADER_SONAME and links with the same -soname)"
+#endif
+typedef struct {                             /* version 1: a lock and a flag; never change its layout */
+    pthread_mutex_t lock;                    /* held while Python is started and pythonfmu's library loaded */
+    int python_started;                      /* an emcosim loader started the process's Python */
+} ProcessState;
+
+__attribute__((visibility("default"))) ProcessState emcosim_fmu_process_v1 = {PTHREAD_MUTEX_INITIALIZER, 0};
+
 /* ---- state of this library (one per FMU: every FMU ships its own copy) ------------------------------ */
-static pthread_mutex_t setup_lock = PTHREAD_MUTEX_INITIALIZER;
+static pthread_mutex_t process_lookup_lock = PTHREAD_MUTEX_INITIALIZER;
+static ProcessState *process;                /* the process's (`emcosim_fmu_process_v1` of the first copy) */
 static int setup_done;                       /* Python and pythonfmu's library are ready */
-static int python_started;                   /* ... and this loader started that Python (no host Python) */
 static char setup_error[MESSAGE_SIZE];       /* or why not (then every fmi2Instantiate reports it) */
 
 typedef struct {                             /* the value references of the last call, as a Python list */
@@ -122,6 +141,7 @@ typedef struct {
     fmi2CallbackFunctions callbacks;         /* given to pythonfmu: its messages go through `relay` */
     int logging_on;                          /* the host's loggingOn (fmi2Instantiate, fmi2SetDebugLogging) */
     int failed;                              /* fmi2Reset failed: only fmi2FreeInstance is left */
+    int busy;                                /* calls of this instance in progress (a logger may call back) */
     PyObject *slave;                         /* the EMSlave (a strong reference), or NULL: forward all */
     PyObject *log_queue;                     /* slave.log_queue, drained after every call */
     PyObject *set_real, *get_real, *do_step; /* the slave's methods of every communication step */
@@ -542,28 +562,45 @@ static int load_pythonfmu(char *error)
     return 0;
 }
 
+/* The process's state: `emcosim_fmu_process_v1` of the copy of this library loaded first (see above). */
+static ProcessState *process_state(void)
+{
+    pthread_mutex_lock(&process_lookup_lock);
+    if (process == NULL) {
+        void *first = dlopen(LOADER_SONAME, RTLD_NOW | RTLD_NOLOAD);
+        ProcessState *found = first ? (ProcessState *)dlsym(first, "emcosim_fmu_process_v1") : NULL;
+        process = found ? found : &emcosim_fmu_process_v1;
+        if (first && process == &emcosim_fmu_process_v1) dlclose(first);   /* this copy: no extra reference */
+    }
+    pthread_mutex_unlock(&process_lookup_lock);
+    return process;
+}
+
 /* Python running, the environment checked, pythonfmu loaded: once per process and FMU binary, except the
- * checks (per instance: another FMU may have loaded something in between). */
+ * checks (per instance: another FMU may have loaded something in between). Python is started under the
+ * process's lock, which every emcosim FMU of the process shares. */
 static int set_up(const Record *record, const char *resources, char *error)
 {
-    pthread_mutex_lock(&setup_lock);
+    ProcessState *shared = process_state();
+    pthread_mutex_lock(&shared->lock);
     if (!setup_done && !setup_error[0]) {
         int (*is_initialized)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
         if (is_initialized != NULL && is_initialized()) {                 /* the host's Python (fmpy, ...) */
-            const char *missing = bind_python(RTLD_DEFAULT);
+            const char *missing = bind_python(RTLD_DEFAULT);            /* or another emcosim FMU's */
             if (missing) snprintf(setup_error, sizeof setup_error, "the host's Python lacks %s", missing);
         } else if (start_python(record, setup_error) == 0) {
-            python_started = 1;
+            shared->python_started = 1;
         }
         if (!setup_error[0]) load_pythonfmu(setup_error);
         setup_done = !setup_error[0];
     }
-    pthread_mutex_unlock(&setup_lock);
+    int started = shared->python_started;
+    pthread_mutex_unlock(&shared->lock);
     if (!setup_done) {
         copy_string(error, MESSAGE_SIZE, setup_error);
         return -1;
     }
-    return check_environment(record, resources, python_started, error);
+    return check_environment(record, resources, started, error);
 }
 
 /* ---- the registry of live instances (per FMU binary) -------------------------------------------------- */
@@ -714,13 +751,21 @@ static void take_slave(Instance *instance)
     py.PyErr_Clear();
 }
 
-/* Forward the slave's log messages (LogMsg: status, category, msg) to the host, then empty the queue;
- * how many there were. */
+/* Forward the slave's log messages (LogMsg: status, category, msg) to the host and empty the queue; how
+ * many there were. The queue is emptied before the first message goes out: a host's logger may call back
+ * into the instance, and that call drains the queue again (issue 26, item 7: reading the queue by index
+ * while the call-back emptied it crashed the host). GIL held. */
 static Py_ssize_t drain(Instance *instance)
 {
     Py_ssize_t n = instance->log_queue ? py.PyList_Size(instance->log_queue) : 0;
+    PyObject *batch = n > 0 ? py.PyList_GetSlice(instance->log_queue, 0, n) : NULL;
+    if (batch == NULL) {
+        py.PyErr_Clear();
+        return 0;
+    }
+    py.PyList_SetSlice(instance->log_queue, 0, n, NULL);
     for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *entry = py.PyList_GetItem(instance->log_queue, i);
+        PyObject *entry = py.PyList_GetItem(batch, i);
         PyObject *status = py.PyObject_GetAttrString(entry, "status");
         PyObject *category = py.PyObject_GetAttrString(entry, "category");
         PyObject *text = py.PyObject_GetAttrString(entry, "msg");
@@ -733,7 +778,7 @@ static Py_ssize_t drain(Instance *instance)
         for (int k = 0; k < 3; k++)
             if (objects[k]) py.Py_DecRef(objects[k]);
     }
-    if (n > 0) py.PyList_SetSlice(instance->log_queue, 0, n, NULL);
+    py.Py_DecRef(batch);
     py.PyErr_Clear();
     return n;
 }
@@ -759,6 +804,7 @@ static Answer ask(Instance *instance, const char *function, PyObject *bound, con
         a[i] = args[i];
         complete = complete && args[i] != NULL;
     }
+    instance->busy++;                         /* fmi2FreeInstance and fmi2Reset wait until it returns */
     PyObject *callable = bound;
     if (callable != NULL) py.Py_IncRef(callable);
     else callable = py.PyObject_GetAttrString(instance->slave, method);
@@ -788,6 +834,7 @@ static Answer ask(Instance *instance, const char *function, PyObject *bound, con
     if (result) py.Py_DecRef(result);
     for (int i = 0; i < nargs; i++)
         if (args[i]) py.Py_DecRef(args[i]);
+    instance->busy--;
     return answer;
 }
 
@@ -939,10 +986,21 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return instance;
 }
 
+/* A host's logger may call back into the instance that is logging (FMI 2.0 does not forbid it): every call
+ * works, except freeing or resetting the instance under the call that is logging, which is refused. */
+static int refused_inside_a_call(Instance *instance, const char *function)
+{
+    if (instance->busy == 0) return 0;
+    emitf(instance, fmi2Error, "%s called while another call of this instance is in progress (from the host's "
+          "logger); refused: call it after that call has returned", function);
+    return 1;
+}
+
 void fmi2FreeInstance(fmi2Component c)
 {
     Instance *instance = lookup(c, "fmi2FreeInstance");
     if (instance == NULL) return;                       /* e.g. freed before: nothing to do, nothing touched */
+    if (refused_inside_a_call(instance, "fmi2FreeInstance")) return;
     unregister_instance(instance);
     lib.fmi2FreeInstance(instance->inner);
     PyGILState_STATE gil = py.PyGILState_Ensure();
@@ -961,10 +1019,13 @@ fmi2Status fmi2Reset(fmi2Component c)
 {
     Instance *instance = lookup(c, "fmi2Reset");
     if (instance == NULL) return fmi2Error;
+    if (refused_inside_a_call(instance, "fmi2Reset")) return fmi2Error;
+    instance->busy++;
     fmi2Status status = lib.fmi2Reset(instance->inner);       /* pythonfmu creates a new Python slave */
     PyGILState_STATE gil = py.PyGILState_Ensure();
     fmi2Status told = tell_interface(instance);
     py.PyGILState_Release(gil);
+    instance->busy--;
     if (told > status) status = told;
     if (status > fmi2Warning) instance->failed = 1;
     return status;
@@ -995,7 +1056,12 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
 #define BEGIN(function, forward)                                                                          \
     Instance *instance = lookup(c, #function);                                                            \
     if (instance == NULL) return fmi2Error;                                                               \
-    if (instance->slave == NULL) return forward;
+    if (instance->slave == NULL) return ({                                                                \
+        instance->busy++;                                                                                 \
+        fmi2Status forwarded_ = (forward);                                                                \
+        instance->busy--;                                                                                 \
+        forwarded_;                                                                                       \
+    });
 
 #define NULL_ARRAYS(function, condition)                                                                  \
     if (condition) {                                                                                      \

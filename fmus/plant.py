@@ -3,8 +3,9 @@
 Variables: every entry of the plant module's PARAMETERS, the initial state q_0, p_0, x_e_0, the
 integration tolerance rtol (parameters); the input u; the outputs q, p, x_e (states: no direct
 feedthrough) and the stored energy H. doStep calls components.plant_step.PlantStepper with u held over
-the step or, when the master has set input derivatives (fmi2SetRealInputDerivatives, orders 1 and 2), with
-the polynomial u + u' tau + u'' tau^2 / 2. Output derivatives (orders 1 and 2) of q, p, x_e and H are the
+the step or, when the master has set input derivatives (fmi2SetRealInputDerivatives, any orders k >= 1),
+with the polynomial u + u' tau + u'' tau^2 / 2 + ... + u^(k) tau^k / k!. Output derivatives (orders 1 and
+2) of q, p, x_e and H are the
 exact ones of eq. (open-loop elecmech) at the current state (PlantStepper.time_derivatives); the input
 they use is the polynomial's value and rate at the end of the last step until the master sets u again.
 The FMU state includes the stepper's proposed substep and that end-of-step input.
@@ -16,6 +17,7 @@ event indicator is the margin to the boundary of the admissible domain (componen
 """
 from __future__ import annotations
 
+import math
 from types import ModuleType
 from typing import ClassVar
 
@@ -23,7 +25,15 @@ import numpy as np
 
 from components import catalog
 from components.ph_plant import DomainError, EMPlant
-from components.plant_step import DEFAULT_RTOL, RTOL_RANGE, PlantStepper, StepFailure, nominal_scale
+from components.plant_step import (
+    DEFAULT_RTOL,
+    RTOL_RANGE,
+    PlantStepper,
+    StepFailure,
+    input_terms,
+    input_value,
+    nominal_scale,
+)
 
 from .slave import EMSlave
 from .variables import RATE_UNITS
@@ -33,6 +43,12 @@ OUTPUT_INDEX = {n: i for i, n in enumerate((*STATE_NAMES, "H"))}   # output -> i
 # what each state derivative depends on, from the structure of eq. (open-loop elecmech) for a constant mass:
 # q' = p/m, p' = -V'(q) - 1/2 Psi'(q) x_e^2 - R_m p/m, x_e' = (J_e - R_e) Psi(q) x_e + G_e u
 DERIVATIVE_DEPENDENCIES = {"q": ["p"], "p": ["q", "p", "x_e"], "x_e": ["q", "x_e", "u"]}
+
+
+def _finite_numbers(values, n: int) -> bool:
+    """Is `values` a list of n finite numbers (not booleans)?"""
+    return isinstance(values, (list, tuple)) and len(values) == n and all(
+        not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in values)
 
 
 def initial_dependencies(knowns: list[str], parameters: list[str]) -> list[str]:
@@ -47,8 +63,7 @@ class PlantSlave(EMSlave):
     initial_state: ClassVar[tuple[float, float, float]]
     input_start: ClassVar[float] = 0.0
     # FMI 2.0 derivatives (hooks at the end of the class)
-    can_interpolate_inputs = True
-    max_input_derivative_order = 2
+    can_interpolate_inputs = True                               # any order: the whole polynomial is integrated
     max_output_derivative_order = 2
     provides_directional_derivative = True
     number_of_event_indicators = 1                              # the margin to the domain's boundary
@@ -63,7 +78,7 @@ class PlantSlave(EMSlave):
         self.parameter("rtol", DEFAULT_RTOL, "1",
                        "relative tolerance of the integration inside doStep (absolute tolerance: rtol times "
                        "the nominal state scale); a tolerance given in fmi2SetupExperiment is used instead "
-                       f"(within [{RTOL_RANGE[0]:g}, {RTOL_RANGE[1]:g}])")
+                       f"where it is tighter (not below {RTOL_RANGE[0]:g})")
         name, unit, description = module.INPUT
         self.input(name, self.input_start, unit, description)
         parameters = list(module.PARAMETERS)
@@ -116,25 +131,36 @@ class PlantSlave(EMSlave):
         self.plant, self.stepper, self.eta, self._H, self.u_end = plant, stepper, eta, None, None
 
     def integration_tolerance(self) -> float:
-        """The rtol of doStep's integration: FMI 2.0 suggests that a co-simulation slave with an error-
-        controlled integrator uses the tolerance the master gives in fmi2SetupExperiment (an error-
-        controlled master passes one matching its own); without one, the parameter rtol."""
-        if self.tolerance is None:
-            return self.values["rtol"]
-        return min(max(self.tolerance, RTOL_RANGE[0]), RTOL_RANGE[1])
+        """The rtol of doStep's integration: the tighter of the parameter rtol and the tolerance the master
+        gives in fmi2SetupExperiment (issue 26, item 9). FMI 2.0 suggests that a slave with an error-
+        controlled integrator use the master's tolerance, and an error-controlled master passes one matching
+        its own (emcosim: a hundredth of it); but a master may pass one whatever it does (OMSimulator
+        always passes its --tolerance, 1e-4 by default), and that must not loosen the accuracy a scenario
+        set (plant.ssv: rtol = 1e-6). A master's tolerance below RTOL_RANGE's lower end counts as that end;
+        an rtol outside the range is refused at initialization (PlantStepper), whatever the master gives."""
+        rtol = self.values["rtol"]
+        if self.tolerance is None or not RTOL_RANGE[0] <= rtol <= RTOL_RANGE[1]:
+            return rtol
+        return min(rtol, max(self.tolerance, RTOL_RANGE[0]))
 
     def step(self, t: float, h: float) -> bool:
         u = self.values["u"]
         du, d2u = self.input_rates()
+        higher = self.higher_input_rates()
         try:
-            self.eta = self.stepper.advance(*self.eta, u, h, du, d2u)
+            self.eta = self.stepper.advance(*self.eta, u, h, du, d2u, higher)
         except (ValueError, ArithmeticError, DomainError, StepFailure) as exc:
-            held = "" if du == d2u == 0.0 else f" + {du!r} tau + {d2u!r} tau^2/2"
+            held = "" if du == d2u == 0.0 and not higher else f" + {du!r} tau + {d2u!r} tau^2/2"
+            held += "".join(f" + {c!r} tau^{k}/{k}!" for k, c in sorted(higher.items()))
             self.log_error(f"{self.model_identifier}: doStep from t = {t:.9g} s over h = {h:.6g} s with u = {u!r}"
                            f"{held} failed: {exc}. The state is left at t = {t:.9g} s.")
             return False
         self._H = None
-        self.u_end = (u + h * (du + 0.5 * h * d2u), du + h * d2u)
+        if higher:                                              # the polynomial's value and rate at tau = h
+            terms = input_terms(u, du, d2u, higher)
+            self.u_end = (input_value(terms, h), input_value(terms, h, 1))
+        else:
+            self.u_end = (u + h * (du + 0.5 * h * d2u), du + h * d2u)
         return True
 
     # ---- Model Exchange (contract: model_exchange.ModelExchangeFunctions) --------------------------------
@@ -227,6 +253,37 @@ class PlantSlave(EMSlave):
         return {"eta": list(self.eta), "h_next": self.stepper.h_next,
                 "u_end": None if self.u_end is None else list(self.u_end)}
 
+    def internal_problem(self, state: dict) -> str:
+        """'' if the integrator state of `state` can be restored, else why not (state.py): complete once
+        initialized, none before; (q, p, x_e) finite and inside the domain of eq. (open-loop elecmech) for the
+        state's parameters (components: check_state, as fmi2ExitInitializationMode checks q_0, p_0, x_e_0);
+        the proposed substep h_next finite and >= 0 (0: none yet); the input at the end of the last step
+        (u, u') finite or none."""
+        internal = state["internal"]
+        if not state["initialized"]:
+            return "" if internal == {} else "it is not initialized but holds an integrator state"
+        if not isinstance(internal, dict) or set(internal) != {"eta", "h_next", "u_end"}:
+            return "its integrator state is incomplete (eta, h_next, u_end)"
+        eta, h_next, u_end = internal["eta"], internal["h_next"], internal["u_end"]
+        if not _finite_numbers(eta, 3):
+            return f"its state (q, p, x_e) = {eta!r} is not three finite numbers"
+        if not (_finite_numbers([h_next], 1) and h_next >= 0):
+            return f"its integrator's proposed substep h_next = {h_next!r} s is not a finite number >= 0"
+        if u_end is not None and not _finite_numbers(u_end, 2):
+            return f"its input at the end of the last step (u, du/dt) = {u_end!r} is not two finite numbers"
+        try:
+            self.plant_of(state["values"]).check_state(np.array(eta, dtype=float))
+        except (ValueError, DomainError) as exc:
+            return f"its state (q, p, x_e) = {tuple(eta)} is not admissible: {exc}"
+        return ""
+
+    def plant_of(self, values: dict) -> EMPlant:
+        """The components plant of the parameter values `values` (this instance's when they are its own)."""
+        names = self.plant_module.PARAMETERS
+        if self.plant is not None and all(values[n] == self.values[n] for n in names):
+            return self.plant
+        return catalog.plant(self.model_identifier, {n: values[n] for n in names})
+
     def restore_internal(self, internal: dict) -> None:
         if internal:
             self.eta = tuple(internal["eta"])
@@ -239,6 +296,11 @@ class PlantSlave(EMSlave):
         """(u', u'') the master set for the current communication point (0 where none was set)."""
         d = self.input_derivatives.get("u")
         return (0.0, 0.0) if not d else (d.get(1, 0.0), d.get(2, 0.0))
+
+    def higher_input_rates(self) -> dict[int, float]:
+        """{k: d^k u/dt^k} for the orders k >= 3 the master set for the current communication point."""
+        d = self.input_derivatives.get("u")
+        return {k: v for k, v in d.items() if k > 2} if d else {}
 
     def inputs_changed(self) -> None:
         """The master set u: from now on it (and the rate it sets) is the input at the current time."""

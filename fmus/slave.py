@@ -33,6 +33,13 @@ from .status import CO_SIMULATION, DISCARD, ERROR, MODEL_EXCHANGE, OK, WARNING
 from .status import DONE as _OK
 from .variables import Variable
 
+# fmi2DoStep's currentCommunicationPoint must be the FMU's time (the end of its last step, the start time,
+# or the time of a restored FMU state) to within this fraction of the largest time magnitude involved
+# (start time, the FMU's time, the communication point, the step): the rounding of t0 + n h, of an
+# accumulated sum or of a master's integer clock is a few ulps (2.2e-16 each), a step is many orders of
+# magnitude more (a step of 1e-12 of the time is below what the master's clock resolves anyway)
+COMMUNICATION_POINT_TOLERANCE = 1e-12
+
 
 class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2Slave):
     """Base of the emcosim slaves (module docstring)."""
@@ -61,6 +68,7 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         self.entered = False                                        # in initialization mode
         self.terminated = False
         self.time = 0.0
+        self.start_time = 0.0                    # fmi2SetupExperiment's startTime
         self.tolerance: float | None = None      # fmi2SetupExperiment's tolerance, if the master defined one
         self._set_names: tuple[list[int], list[str]] = ([], [])     # the last Real inputs set: vrs, names
         self.init_derivatives()
@@ -205,7 +213,7 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
             return ERROR, f"{where}: stopTime = {stop_time!r} is before startTime = {start_time!r}"
         if tolerance_defined and not tolerance > 0:
             return ERROR, f"{where}: tolerance = {tolerance!r} is not > 0"
-        self.time = float(start_time)
+        self.time = self.start_time = float(start_time)
         self.tolerance = float(tolerance) if tolerance_defined else None
         return _OK
 
@@ -249,8 +257,9 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
 
     def fmi2_do_step(self, current_time: float, step_size: float) -> tuple[int, str]:
         """fmi2OK after a successful step; fmi2Discard when the adapter refuses the step (it logged why;
-        the state stays at the start of the step); fmi2Error for a call in the wrong state or a step
-        that is not finite and positive."""
+        the state stays at the start of the step); fmi2Error for a call in the wrong state, a step that is
+        not finite and positive, or a currentCommunicationPoint that is not the FMU's time (issue 26,
+        item 8: the time jumped before; within COMMUNICATION_POINT_TOLERANCE it is the FMU's time)."""
         where = f"{self.model_identifier}: fmi2DoStep"
         if self.interface != CO_SIMULATION:
             return ERROR, self.cs_only("fmi2DoStep")
@@ -261,6 +270,10 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         if not (math.isfinite(current_time) and math.isfinite(step_size) and step_size > 0):
             return ERROR, (f"{where}: currentCommunicationPoint = {current_time!r}, communicationStepSize = "
                            f"{step_size!r}: both must be finite and the step > 0")
+        if current_time != self.time and not self._at_time(current_time, step_size):
+            return ERROR, (f"{where}: currentCommunicationPoint = {current_time!r} s is not this FMU's time "
+                           f"{self.time!r} s (the end of its last step, its start time or the time of the FMU "
+                           "state set last): a step starts where the FMU is (fmi2SetFMUstate takes it back)")
         try:
             ok = bool(self.step(current_time, step_size))
         except Exception as exc:                                      # noqa: BLE001 - the state is kept
@@ -270,6 +283,11 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         self.time = current_time + step_size
         self.input_derivatives.clear()                               # set again by the master for the next step
         return _OK
+
+    def _at_time(self, current_time: float, step_size: float) -> bool:
+        """Is `current_time` the FMU's time, to within the rounding of the master's clock?"""
+        scale = max(abs(self.time), abs(current_time), abs(self.start_time), step_size)
+        return abs(current_time - self.time) <= COMMUNICATION_POINT_TOLERANCE * scale
 
     def fmi2_set_real(self, vrs: list[int], values: list[float]) -> tuple[int, str]:
         if not self.terminated:                                       # fast path: Real inputs

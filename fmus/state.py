@@ -2,10 +2,17 @@
 a snapshot of every variable plus what an adapter keeps outside them (`save_internal` /
 `restore_internal`), so a master can roll a step back exactly. A Model Exchange instance's state also
 holds its mode (event or continuous-time: model_exchange.py), as the FMU SDK's and the Reference FMUs' do.
-A state is checked before it is applied (this FMU's, this build's, every variable with a number) and
-applied all or nothing; serialized states
-carry a header, a format version and a sha256 checksum that deserialization checks (it catches
-accidents, a cut or changed file, not intent).
+A state is checked before it is applied, and applied all or nothing: it must be this FMU's and this
+build's, hold every variable with a number of its type, a finite time, input derivatives of orders the
+FMU takes with finite values, and be consistent in itself (a state that is not initialized has no
+Model Exchange mode and no integrator state); the adapter checks what it keeps outside the variables
+against the model's domain (`internal_problem`: a plant's q, p, x_e must be admissible for the state's
+parameters, as at initialization, and its integrator's proposed substep finite and >= 0). Variables are
+taken as fmi2SetReal and fmi2SetInteger take them (a parameter is checked when the state is applied
+with other parameters: the model is built again from them). Serialized states carry a header, a format
+version and a sha256 checksum that deserialization checks: it catches accidents (a cut or changed
+file), not intent: anyone can write bytes with a matching checksum, so deserialization checks the
+content as fmi2SetFMUstate does (issue 26, item 8: a state with q = -1 m was accepted before).
 """
 from __future__ import annotations
 
@@ -33,6 +40,11 @@ class StateFunctions:
 
     def restore_internal(self, internal: dict) -> None:
         pass
+
+    def internal_problem(self, state: dict) -> str:
+        """'' if what `state` keeps outside the variables (`save_internal`) can be restored, else what is
+        wrong: an adapter with an internal state checks it against the model's domain (plant.py)."""
+        return ""
 
     def fmi2_get_fmu_state(self) -> tuple[int, dict | None, str]:
         try:
@@ -115,13 +127,24 @@ class StateFunctions:
             return "it is incomplete"
         if state["me_mode"] not in (None, EVENT, CONTINUOUS):
             return f"its Model Exchange mode {state['me_mode']!r} is not one"
-        derivatives = state["input_derivatives"]
+        if not state["initialized"] and state["me_mode"] is not None:
+            return f"it is not initialized but in Model Exchange mode {state['me_mode']!r}"
+        problem = self._derivatives_problem(state["input_derivatives"])
+        return problem or self.internal_problem(state)
+
+    def _derivatives_problem(self, derivatives) -> str:
+        """'' if `derivatives` ({input: {order: value}}) are input derivatives this FMU takes, else why not."""
         inputs = set(self._real_inputs.values())
         if not isinstance(derivatives, dict) or not all(
-                name in inputs and isinstance(orders, dict)
-                and all(isinstance(k, int) and isinstance(v, (int, float)) for k, v in orders.items())
-                for name, orders in derivatives.items()):
+                name in inputs and isinstance(orders, dict) for name, orders in derivatives.items()):
             return "its input derivatives are not this FMU's"
+        for name, orders in derivatives.items():
+            for k, v in orders.items():
+                problem = self._order_problem(k)
+                if problem:
+                    return f"its input derivative of {name} of order {k!r} {problem}"
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    return f"its input derivative of {name} of order {k} = {v!r} is not a finite number"
         return ""
 
     def _apply_state(self, state: dict) -> None:

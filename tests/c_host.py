@@ -13,6 +13,7 @@ from fmpy import read_model_description
 SOURCE = Path(__file__).parent / "fixtures" / "c_host.c"
 LOOP_SOURCE = Path(__file__).parent / "fixtures" / "c_loop.c"
 CALLS_SOURCE = Path(__file__).parent / "fixtures" / "c_calls.c"
+THREADS_SOURCE = Path(__file__).parent / "fixtures" / "c_threads.c"
 TOYS = Path(__file__).parent / "fixtures" / "emcosim_toy_derivatives.py"
 _TOYS: dict[str, Path] = {}
 
@@ -34,7 +35,7 @@ def compile_c_host(exe: Path, source: Path = SOURCE) -> str | None:
     import fmpy
 
     subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"), str(source),
-                    "-o", str(exe), "-ldl", "-lm"], check=True, capture_output=True)
+                    "-o", str(exe), "-ldl", "-lm", "-lpthread"], check=True, capture_output=True)
     return None
 
 
@@ -120,3 +121,17 @@ CONTROLLER_INPUTS = {
     "Maglev_Theorem3": {"q": 0.002, "p": 1e-3, "x_e": 0.9, "q_star": 0.0025, "q_star_dot": 0.01,
                         "q_star_ddot": -0.3, "q_star_dddot": 2.0},
 }
+
+
+def threads_command(exe: Path, folders: list[Path], outputs: list[str], rounds: int) -> list[str]:
+    """The command line of the C host of tests/fixtures/c_threads.c (two FMUs instantiated at once from two
+    threads, `rounds` times) for two extracted FMUs (`extract`) and the output read from each, under an
+    empty environment."""
+    args = ["env", "-i", str(exe), str(rounds)]
+    for folder, output in zip(folders, outputs):
+        md = read_model_description(str(folder / "modelDescription.xml"))
+        identifier = md.coSimulation.modelIdentifier
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        args += [str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier, (folder / "resources").as_uri(),
+                 md.guid, str(vr[output])]
+    return args

@@ -28,12 +28,14 @@ from .c_host import (
     CALLS_SOURCE,
     CONTROLLER_INPUTS,
     LOOP_SOURCE,
+    THREADS_SOURCE,
     compile_c_host,
     extract,
     last_inputs,
     run_calls,
     run_in_c_host,
     run_loop_in_c_host,
+    threads_command,
     toy_fmus,
 )
 
@@ -263,3 +265,82 @@ def test_instantiate_refuses_another_builds_guid_in_one_message(c_calls, fmus, t
     run = subprocess.run(["env", "-i", *exe, "{00000000-0000-0000-0000-000000000000}", "inst"], capture_output=True,
                          text=True, timeout=300)
     assert len(_logged(run.stderr)) == 1 and md.guid in run.stderr and "is not this FMU's" in run.stderr
+
+
+# ---- issue 26, item 7: concurrent hosts and loggers that call back ------------------------------------
+OUTPUT_READ = {"MEMS": "q", "Maglev": "q", "Reference": "q_star", "MEMS_Proposition1": "u", "MEMS_Theorem2": "u",
+               "Maglev_Proposition2": "u", "Maglev_Theorem3": "u"}
+PAIRS = [("MEMS", "MEMS_Proposition1"), ("Maglev", "Maglev_Theorem3"), ("Reference", "MEMS_Theorem2"),
+         ("Maglev_Proposition2", "MEMS"), ("MEMS_Theorem2", "Maglev"), ("Maglev_Theorem3", "Reference"),
+         ("MEMS_Proposition1", "Maglev_Proposition2")]
+ROUNDS = 50                                      # processes, each starting Python from two threads at once
+
+
+@pytest.fixture(scope="module")
+def c_threads(tmp_path_factory) -> Path:
+    exe = tmp_path_factory.mktemp("c_threads") / "c_threads"
+    reason = compile_c_host(exe, THREADS_SOURCE)
+    if reason:
+        pytest.skip(reason)
+    return exe
+
+
+def _one_at_a_time(c_calls, folder: Path, output: str) -> float:
+    """The output after fmi2Instantiate, initialization and one doStep of 1e-6 s, alone in a C host."""
+    vr = {v.name: v.valueReference for v in read_model_description(str(folder / "modelDescription.xml")).modelVariables}
+    run, lines = run_calls(c_calls, folder, ["inst", "init", "step", "0", "1e-6", "getr", str(vr[output]), "free"])
+    assert run.returncode == 0 and lines[3][1] == "0", run.stderr[-1500:]
+    return float(lines[3][2])
+
+
+def test_two_different_fmus_instantiated_at_once_from_two_threads(c_threads, c_calls, fmus, tmp_path):
+    """Issue 26, item 7: a C host without Python instantiates two different emcosim FMUs at the same moment
+    from two threads. Every FMU binary had its own lock around starting Python, so both loaders started it
+    at once: SIGSEGV, "double free or corruption" or "Python did not start" in 11 of 11 processes. The
+    loaders now share one lock per process (the first loaded copy's, found by the loader's SONAME). 50
+    processes, the 7 FMUs in 7 pairs, each process 3 rounds (the first races the start of Python, the next
+    ones the creation of instances): every process exits with status 0 and every round gives the output
+    of the FMU run alone, bit for bit."""
+    folders = {identifier: extract(fmus[identifier], tmp_path)[0] for identifier in fmus}
+    alone = {identifier: _one_at_a_time(c_calls, folders[identifier], OUTPUT_READ[identifier]) for identifier in fmus}
+    commands = [threads_command(c_threads, [folders[a], folders[b]], [OUTPUT_READ[a], OUTPUT_READ[b]], 3)
+                for a, b in (PAIRS[k % len(PAIRS)] for k in range(ROUNDS))]
+    failed = []
+    for start in range(0, ROUNDS, 2):                                # two processes at a time
+        running = [(k, subprocess.Popen(commands[k], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+                   for k in range(start, min(start + 2, ROUNDS))]
+        for k, process in running:
+            out, err = process.communicate(timeout=300)
+            pair = PAIRS[k % len(PAIRS)]
+            rows = [line.split() for line in out.splitlines()]
+            got = [(int(r[4]), float(r[5])) for r in rows if r[0] == "round"]
+            if process.returncode != 0 or got != [(0, alone[pair[int(r[3])]]) for r in rows if r[0] == "round"] \
+                    or len(got) != 6:
+                failed.append((k, pair, process.returncode, got, err[-300:]))
+    assert not failed, f"{len(failed)} of {ROUNDS} processes failed; the first: {failed[0]}"
+
+
+def test_logger_that_calls_back_into_the_instance_does_not_crash_the_host(c_calls, fmus, tmp_path):
+    """Issue 26, item 7: a host's logger that calls back into the instance that is logging (here
+    fmi2GetReal and an fmi2SetReal that is refused, so it logs again inside) crashed the loader: the
+    call-back drained the log queue while the outer call still read it by index (SIGSEGV). A controller
+    with a NaN input logs two messages in doStep. The host exits with status 0, every message reaches it
+    once, fmi2Reset and fmi2FreeInstance from inside the logger are refused with a message (they would
+    free what the call in progress uses), and the instance works on: a finite input gives a finite u."""
+    folder, vr = extract(fmus["MEMS_Proposition1"], tmp_path)
+    u, q = str(vr["u"]), str(vr["q"])
+    run, lines = run_calls(c_calls, folder, ["inst", "init", "reenter", u, "reenter_free", "setr", q, "nan",
+                                             "step", "0", "1e-6", "getr", u, "setr", q, "1.5e-5", "step", "0", "1e-6",
+                                             "getr", u, "free"])
+    assert run.returncode == 0, f"exit status {run.returncode}: {run.stderr[-1500:]}"
+    assert ["step", "2"] in lines and ["step", "0"] in lines, lines
+    called_back = [w for w in lines if w[0] == "logger-called-back"]
+    assert called_back and all(w[1:3] == ["3", "3"] for w in called_back), called_back
+    assert all(w == ["logger-reset", "3"] for w in lines if w[0] == "logger-reset")
+    last = [w for w in lines if w[0] == "getr"][-1]
+    assert last[1] == "0" and math.isfinite(float(last[2])), lines
+    doubled = [m for m in _logged(run.stderr) if "(doStep at t = 0 s)" in m]
+    assert len(doubled) == 1, doubled                                # once: the queue is read once
+    for words in ("fmi2Reset called while another call of this instance is in progress",
+                  "fmi2FreeInstance called while another call of this instance is in progress"):
+        assert words in run.stderr, (words, run.stderr[-1500:])

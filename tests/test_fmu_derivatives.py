@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
 
 from components import catalog
 from components.plant_step import PlantStepper, simulate_polynomial
@@ -233,3 +234,84 @@ def test_derivative_functions_of_the_fmus_in_c_host(c_calls, fmus, tmp_path):
     result = [line for line in lines if line[0] == "dget"][0]
     assert result[1] == "0" and float(result[2]) == pytest.approx(catalog.reference("sinusoid").derivatives(0.01, 4)[4],
                                                                   rel=1e-14)
+
+
+# ---- issue 26, item 9: input derivatives of any order ------------------------------------------------
+# a polynomial input of degree 4 per plant: (u, u', u'', u''', u'''') at t = 0, and the step
+QUARTICS = {"MEMS": ((25.0, 2e5, -3e10, 1e17, 1e23), 1e-6), "Maglev": ((0.9, 0.5, -20.0, 1e6, 1e9), 1e-3)}
+
+
+@pytest.mark.parametrize("identifier", PLANTS)
+def test_plant_integrates_a_polynomial_input_of_any_degree(fmus, identifier):
+    """FMI 2.0 declares no highest input derivative order, and OMSimulator (--inputExtrapolation) sends the
+    source's top order: the plants refused order 3 with fmi2Error. Now orders 1..4 set before a doStep give
+    the quartic u + u' tau + ... + u'''' tau^4/4!: the same step as components' PlantStepper with the
+    orders >= 3 in `higher`, within rtol of Radau with that input, and not the step of the quadratic alone;
+    after the step the output derivatives use the quartic's value and rate at its end."""
+    slave = Slave(fmus[identifier])
+    assert slave.init() == 0
+    plant, stepper, eta = _components_plant(slave, identifier)
+    coefficients, h = QUARTICS[identifier]
+    u, du, d2u, d3u, d4u = coefficients
+    vr = slave.vr
+    slave.set(u=u)
+    slave.fmu.setRealInputDerivatives([vr["u"]] * 4, [1, 2, 3, 4], [du, d2u, d3u, d4u])
+    assert slave.step(0.0, h) == 0, slave.messages
+    got = slave.get("q", "p", "x_e")
+    quadratic = PlantStepper(plant, rtol=stepper.rtol).advance(*eta, u, h, du, d2u)
+    expected = stepper.advance(*eta, u, h, du, d2u, {3: d3u, 4: d4u})
+    assert got == pytest.approx(expected, rel=1e-13, abs=0)
+    radau = simulate_polynomial(plant, eta, h, [coefficients], rtol=1e-12)[-1]
+    tolerance = stepper.rtol * (np.array(stepper.scale) + np.abs(radau))
+    assert np.all(np.abs(np.array(got) - radau) <= tolerance)
+    assert np.any(np.abs(np.array(quadratic) - radau) > tolerance)    # the orders 3 and 4 count
+    end = (u + du * h + d2u * h**2 / 2 + d3u * h**3 / 6 + d4u * h**4 / 24,
+           du + d2u * h + d3u * h**2 / 2 + d4u * h**3 / 6)
+    d1, d2, _, _ = plant.time_derivatives(np.array(got), *end)
+    assert slave.fmu.getRealOutputDerivatives([vr["x_e"], vr["x_e"]], [1, 2]) == pytest.approx([d1[2], d2[2]],
+                                                                                              rel=1e-10)
+
+
+@pytest.mark.parametrize("identifier", PLANTS)
+def test_plant_takes_an_order_far_beyond_what_it_needs(fmus, identifier):
+    """An order as high as fmi2Integer goes (2^31 - 1) with a large value: fmi2OK; its term
+    u^(k) tau^k / k! vanishes over a step (evaluated without forming k!), so the step equals the held
+    input's; orders below 1 are refused with fmi2Error naming the order."""
+    held, moved = Slave(fmus[identifier]), Slave(fmus[identifier])
+    h = QUARTICS[identifier][1]
+    for slave in (held, moved):
+        assert slave.init() == 0
+        slave.set(u=QUARTICS[identifier][0][0])
+    moved.fmu.setRealInputDerivatives([moved.vr["u"]], [2**31 - 1], [1e300])
+    assert held.step(0.0, h) == 0 and moved.step(0.0, h) == 0, moved.messages
+    assert moved.get("q", "p", "x_e") == held.get("q", "p", "x_e")
+    for order in (0, -1):
+        with pytest.raises(FMICallException):
+            moved.fmu.setRealInputDerivatives([moved.vr["u"]], [order], [1.0])
+        assert f"order {order} for input u is not an integer >= 1" in moved.errors()
+    held.free()
+    moved.free()
+
+
+@pytest.mark.parametrize("identifier", CONTROLLERS)
+def test_controller_takes_every_order_and_uses_the_first(fmus, identifier):
+    """The controllers refused input derivatives of order 2 (fmi2Error): OMSimulator with
+    --inputExtrapolation then failed every step. Now orders 1..3 (and 17) are accepted with fmi2OK, and
+    du/dt, which needs the first ones only, is the same as with order 1 alone (the rest are dropped)."""
+    first, every = Slave(fmus[identifier]), Slave(fmus[identifier])
+    names = None
+    for slave in (first, every):
+        assert slave.init() == 0
+        inputs = _controller_inputs(identifier, slave)
+        slave.set(**inputs)
+        names = list(inputs)
+    rates = [0.01 * (abs(v) or 1.0) * (k + 1) for k, v in enumerate(inputs.values())]
+    vrs = [first.vr[n] for n in names]
+    first.fmu.setRealInputDerivatives(vrs, [1] * len(vrs), rates)
+    every.fmu.setRealInputDerivatives(vrs * 4, [1] * len(vrs) + [2] * len(vrs) + [3] * len(vrs) + [17] * len(vrs),
+                                      rates + [1e3 * r for r in rates] * 3)
+    du = first.fmu.getRealOutputDerivatives([first.vr["u"]], [1])
+    assert every.fmu.getRealOutputDerivatives([every.vr["u"]], [1]) == du and np.isfinite(du[0])
+    assert every.step(0.0, 1e-6) == 0 and every.messages == []
+    first.free()
+    every.free()

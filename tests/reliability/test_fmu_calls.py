@@ -145,3 +145,27 @@ def test_non_finite_output_is_an_error_naming_it(reliability_fmus, worker, tally
     assert "u = nan is not finite" in _errors(r[3])
     assert math.isfinite(r[6][2])
     tally.add("fmu calls", identifier, "clean_error", 2)
+
+
+@pytest.mark.parametrize("identifier", ALL)
+def test_step_from_a_point_that_is_not_the_fmus_time_is_an_error(reliability_fmus, worker, tally, identifier):
+    """fmi2DoStep with a currentCommunicationPoint that is not the FMU's time (issue 26, item 8): from 0
+    again after a step to h, from 5 h, and from a billionth of a step before h: fmi2Error naming both
+    times (fmi2OK before, and the time jumped: the Reference's jet and a plant's step followed the
+    master's point), nothing changes, and a step from h then gives the straight run's outputs exactly.
+    Times that differ from the FMU's by rounding (a master's t0 + n h against the FMU's sum of its steps)
+    are its time: 20 steps from n h, n = 2..21."""
+    path = reliability_fmus[identifier]
+    h = H.get(identifier, 1e-6)
+    outputs = _outputs(identifier, path)
+    straight = _calls(worker, {"A": path}, [["inst", "A"], ["init", {}], ["step", 0.0, h], ["step", h, h], *outputs])
+    r = _calls(worker, {"A": path}, [
+        ["inst", "A"], ["init", {}], ["step", 0.0, h], ["step", 0.0, h], ["step", 5 * h, h],
+        ["step", h * (1 - 1e-9), h], ["step", h, h], *outputs, *(["step", n * h, h] for n in range(2, 22))])
+    refused = r[3:6]
+    assert [c[1] for c in refused] == [ERROR] * 3, refused
+    assert all("is not this FMU's time" in _errors(c) for c in refused), [_errors(c) for c in refused]
+    assert r[6][1] == OK and [c[2] for c in r[7:7 + len(outputs)]] == [c[2] for c in straight[4:]]
+    rounded = r[7 + len(outputs):]
+    assert [c[1] for c in rounded] == [OK] * 20, [c for c in rounded if c[1] != OK][:1]
+    tally.add("fmu calls", identifier, "clean_error", 3)

@@ -1,6 +1,8 @@
 """The FMU instances of a scenario: what the engine knows of each (`Instance`), creating and freeing them."""
 from __future__ import annotations
 
+import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -72,6 +74,29 @@ def free(inst: Instance) -> None:
     except Exception:
         pass
     inst.fmu = None
+
+
+def reset_all(instances: dict[str, Instance], instantiate_again: Callable[[], None]) -> None:
+    """fmi2Reset of every instance (their messages cleared); if one fails, every instance is freed and
+    `instantiate_again` starts them from scratch."""
+    try:
+        for inst in instances.values():
+            inst.fmu.reset()
+            inst.messages.clear()
+    except Exception:                     # noqa: BLE001 - any failure: start from scratch
+        for inst in instances.values():
+            free(inst)
+            inst.messages.clear()
+        instantiate_again()
+
+
+def free_all(instances: dict[str, Instance], workdirs: list) -> None:
+    """Free every instance and delete the folders their FMUs were unpacked into."""
+    for inst in instances.values():
+        free(inst)
+    for d in workdirs:
+        shutil.rmtree(d, ignore_errors=True)
+    workdirs.clear()
 
 
 def last_message(inst: Instance) -> str:

@@ -28,7 +28,6 @@ co-simulation FMU and any SSP scenario runs.
 from __future__ import annotations
 
 import math
-import shutil
 import time
 from typing import Callable, Sequence
 
@@ -162,24 +161,12 @@ class Simulation:
         self.runs = 0
 
     def _reset(self) -> None:
-        try:
-            for inst in self.instances.values():
-                inst.fmu.reset()
-                inst.messages.clear()
-        except Exception:                     # noqa: BLE001 - any failure: start from scratch
-            for inst in self.instances.values():
-                instances_.free(inst)
-                inst.messages.clear()
-            self._instantiate()
+        instances_.reset_all(self.instances, self._instantiate)
 
     def close(self) -> None:
         """Free the FMU instances and delete their unpacked files."""
-        for inst in self.instances.values():
-            instances_.free(inst)
         self._free_shadow()
-        for d in self._workdirs:
-            shutil.rmtree(d, ignore_errors=True)
-        self._workdirs.clear()
+        instances_.free_all(self.instances, self._workdirs)
 
     def __enter__(self) -> "Simulation":
         return self

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import shutil
 import time
 from typing import Callable, Sequence
 
@@ -90,22 +89,10 @@ class ModelExchangeSimulation:
         self.runs = 0
 
     def _reset(self) -> None:
-        try:
-            for inst in self.instances.values():
-                inst.fmu.reset()
-                inst.messages.clear()
-        except Exception:                     # noqa: BLE001 - any failure: start from scratch
-            for inst in self.instances.values():
-                instances_.free(inst)
-                inst.messages.clear()
-            self._instantiate()
+        instances_.reset_all(self.instances, self._instantiate)
 
     def close(self) -> None:
-        for inst in self.instances.values():
-            instances_.free(inst)
-        for d in self._workdirs:
-            shutil.rmtree(d, ignore_errors=True)
-        self._workdirs.clear()
+        instances_.free_all(self.instances, self._workdirs)
 
     def __enter__(self) -> "ModelExchangeSimulation":
         return self

@@ -12,9 +12,11 @@ Input derivative orders: FMI 2.0 has no attribute that declares up to which orde
 canInterpolateInputs takes them, and masters send what their sources give (OMSimulator with
 --inputExtrapolation: the source's maxOutputDerivativeOrder). So an FMU accepts every order >= 1 and
 uses what it needs (issue 26, item 9): `input_derivative_orders_used` orders are kept, higher ones are
-accepted and dropped (a controller that needs only first derivatives); None keeps every order (a plant
-integrates the whole polynomial). `max_input_derivative_order` refuses orders above it with fmi2Error,
-as an FMU of another vendor may (the tests' toy FMUs do, to test masters against it); None refuses none.
+accepted and dropped (a controller that needs only first derivatives), and declared in modelDescription.xml
+(model_description.py: emcosim's vendor annotation, so that a master passes no order that is dropped);
+None keeps every order (a plant integrates the whole polynomial). `max_input_derivative_order` refuses orders
+above it with fmi2Error, as an FMU of another vendor may (the tests' toy FMUs do, to test masters against it);
+None refuses none.
 """
 from __future__ import annotations
 

@@ -1,8 +1,9 @@
 """modelDescription.xml of an emcosim FMU, written whole from the slave's declared variables (FMI 2.0,
 section 2.2): both interfaces (<ModelExchange> and <CoSimulation>, one binary), UnitDefinitions, every
 variable with its unit and description, the state derivatives der(x) of an FMU with states, and a
-ModelStructure with real dependencies (Outputs, Derivatives, InitialUnknowns). The GUID is derived from
-the content and the build, so that the same inputs give the same bytes.
+ModelStructure with real dependencies (Outputs, Derivatives, InitialUnknowns), and for an FMU that drops
+input derivatives above some order, emcosim's vendor annotation saying which it uses (`TOOL`, below).
+The GUID is derived from the content and the build, so that the same inputs give the same bytes.
 """
 from __future__ import annotations
 
@@ -21,6 +22,13 @@ LOG_CATEGORIES = {
     "logStatusFatal": "Log messages with fmi2Fatal status.",
     "logAll": "Log all messages.",
 }
+# emcosim's vendor annotation (read by emcosim/engine/vendor.py, which spells the same names):
+#   <VendorAnnotations><Tool name="org.emcosim"><InputDerivatives orderUsed="1"/></Tool></VendorAnnotations>
+# It works around FMI 2.0 having no attribute for the input derivative order a slave uses: canInterpolateInputs
+# says it takes derivatives, not up to which order, so a master passes what the source gives.
+TOOL = "org.emcosim"
+INPUT_DERIVATIVES = "InputDerivatives"
+ORDER_USED = "orderUsed"
 
 
 def _flag(value: bool) -> str:
@@ -64,6 +72,7 @@ def model_description(slave: Any, build: str, options: dict[str, bool]) -> Eleme
     start, stop, step = slave.experiment
     SubElement(root, "DefaultExperiment", {"startTime": repr(float(start)), "stopTime": repr(float(stop)),
                                            "stepSize": repr(float(step))})
+    _vendor_annotations(root, slave)         # FMI 2.0: after DefaultExperiment, before ModelVariables
 
     model_variables = SubElement(root, "ModelVariables")
     for vr, v in enumerate(variables):
@@ -94,6 +103,16 @@ def model_description(slave: Any, build: str, options: dict[str, bool]) -> Eleme
     digest = hashlib.sha256(tostring(root) + build.encode()).hexdigest()
     root.set("guid", "{%s}" % uuid.uuid5(uuid.NAMESPACE_URL, "emcosim:" + digest))
     return root
+
+
+def _vendor_annotations(root: Element, slave: Any) -> None:
+    """emcosim's <Tool> (module constants) for a slave that interpolates inputs and drops the orders above
+    `input_derivative_orders_used`; none for one that uses every order (a plant) or takes none."""
+    used = slave.input_derivative_orders_used
+    if not slave.can_interpolate_inputs or used is None:
+        return
+    tool = SubElement(SubElement(root, "VendorAnnotations"), "Tool", {"name": TOOL})
+    SubElement(tool, INPUT_DERIVATIVES, {ORDER_USED: str(int(used))})   # the Tool's one element (fmi2Annotation)
 
 
 def _indices(names: list[str], index: dict[str, int]) -> str:

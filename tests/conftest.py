@@ -52,13 +52,15 @@ def toy_library(tmp_path_factory) -> Path:
 @pytest.fixture
 def make(tmp_path, toy_library):
     """make(components, connections, parameters, stop_time, step_size) -> scenario folder;
-    components: [(name, kind, connectors, interpolate, output order)]; connections: [(start, end[, factor])]."""
+    components: [(name, kind, connectors, interpolate, output order[, the content of <VendorAnnotations>])];
+    connections: [(start, end[, factor])]."""
     def build(components, connections, parameters=None, stop_time=1.0, step_size=0.01):
         folder = tmp_path / f"s{len(list(tmp_path.iterdir()))}"
         folder.mkdir()
         comps = []
-        for name, kind, connectors, interpolate, order in components:
-            fmu = toy_fmus.build(folder, toy_library, kind, f"Toy{name.title()}{int(interpolate)}{order}", interpolate, order)
+        for name, kind, connectors, interpolate, order, *vendor in components:
+            fmu = toy_fmus.build(folder, toy_library, kind, f"Toy{name.title()}{int(interpolate)}{order}", interpolate,
+                                 order, *vendor)
             comp = Component(name, fmu, connectors=connectors)
             if parameters and name in parameters:
                 (folder / f"{name}.ssv").write_text(parameter_set_xml(

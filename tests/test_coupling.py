@@ -16,9 +16,9 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-from emcosim.engine import coupling
+from emcosim.engine import coupling, vendor
 from emcosim.engine.errors import ScenarioError
-from emcosim.engine.master import Simulation, simulate
+from emcosim.engine.master import Simulation, declared_orders, simulate
 from emcosim.engine.plan import make_plan
 from emcosim.engine.ssd import read_scenario
 from tests.helpers import DYNAMIC, SINE, STATIC, loop
@@ -128,6 +128,82 @@ def test_a_target_refusing_an_order_is_coupled_one_order_lower(make):
     assert simulate(s, coupling_order=2, record=["plant.x"]).coupling_orders["plant.u"] == 1
 
 
+def _annotated(order_used: str) -> str:
+    """emcosim's vendor annotation (emcosim/engine/vendor.py) with orderUsed as given (no quoting)."""
+    return f'<Tool name="org.emcosim"><InputDerivatives orderUsed="{order_used}"/></Tool>'
+
+
+def _loop_declaring(make, vendor: str | None, input_order: float = 3.0):
+    """plant (order 3 accepted unless input_order says less; carrying `vendor`) and ctrl in the x' = -x loop."""
+    return make([("plant", "dynamic", DYNAMIC, True, 3, vendor), ("ctrl", "static", STATIC, True, 3)],
+                [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")],
+                {"ctrl": {"k1": -1.0}, "plant": {"x0": 1.0, "input_order": input_order}})
+
+
+def test_a_target_declaring_the_order_it_uses_gets_no_order_above_it(make):
+    """FMI 2.0 cannot say which input derivative order an FMU uses; emcosim's vendor annotation can. The
+    plant takes every order but declares orderUsed="1": the master couples it at order 1 from the start
+    (no probe needed): the same numbers, bit for bit, as the plant that refuses order 2 and is probed."""
+    declared = _loop_declaring(make, _annotated("1"))
+    with Simulation(declared) as sim:
+        assert declared_orders(sim.instances) == {"plant": 1}
+        r = sim.run(record=["plant.x"])
+    assert r.coupling_orders == {"ctrl.u1": 3, "plant.u": 1} and r.warnings == []
+    probed = simulate(_loop_declaring(make, None, input_order=1.0), record=["plant.x"])
+    assert probed.coupling_orders == r.coupling_orders
+    np.testing.assert_array_equal(r["plant.x"], probed["plant.x"])
+    np.testing.assert_allclose(r["plant.x"], taylor(-0.01, 1) ** np.arange(len(r)), rtol=1e-13)
+    # the plant refuses order 2 too: it never sees it (its refusal would end the run or be probed)
+    strict = simulate(_loop_declaring(make, _annotated("1"), input_order=1.0), record=["plant.x"])
+    np.testing.assert_array_equal(strict["plant.x"], r["plant.x"])
+    assert simulate(_loop_declaring(make, _annotated("0")), record=["plant.x"]).coupling_orders["plant.u"] == 0
+
+
+@pytest.mark.parametrize("order_used, problem", [
+    ("x", "orderUsed='x' is not an integer >= 0"), ("-1", "orderUsed='-1' is not an integer >= 0"),
+    ("1.5", "orderUsed='1.5' is not an integer >= 0"), ("", "orderUsed='' is not an integer >= 0"),
+    ("\u00b2", "is not an integer >= 0"), ("1" * 5000, None), ("0" * 5000 + "2", None)])
+def test_a_malformed_order_used_is_ignored_with_a_warning(make, order_used, problem):
+    """An orderUsed that is not an integer >= 0 is ignored (the master probes as without it) and said
+    in the result's warnings; a huge one limits nothing; none of them stops the run."""
+    s = _loop_declaring(make, _annotated(order_used), input_order=2.0)
+    r = simulate(s, record=["plant.x"])
+    assert r.coupling_orders == {"ctrl.u1": 3, "plant.u": 2}     # the plant refuses 3: probed (or declared) 2
+    np.testing.assert_allclose(r["plant.x"], taylor(-0.01, 2) ** np.arange(len(r)), rtol=1e-13)
+    if problem is None:
+        assert r.warnings == []
+    else:
+        assert len(r.warnings) == 1 and r.warnings[0].startswith("plant: ") and problem in r.warnings[0], r.warnings
+        assert "ignored" in r.warnings[0]
+
+
+def test_other_vendor_annotations_and_a_tool_without_order_are_no_declaration(make):
+    """Another tool's annotation, or emcosim's without <InputDerivatives>, declares nothing (no warning);
+    <InputDerivatives> without orderUsed is a malformed declaration: a warning."""
+    others = '<Tool name="com.example"><InputDerivatives orderUsed="0"/></Tool><Tool name="org.emcosim"><Other/></Tool>'
+    r = simulate(_loop_declaring(make, others), record=["plant.x"])
+    assert r.coupling_orders == {"ctrl.u1": 3, "plant.u": 3} and r.warnings == []
+    r = simulate(_loop_declaring(make, '<Tool name="org.emcosim"><InputDerivatives/></Tool>'), record=["plant.x"])
+    assert r.coupling_orders["plant.u"] == 3 and len(r.warnings) == 1 and "has no orderUsed" in r.warnings[0]
+
+
+def test_an_unreadable_annotation_source_is_a_warning_not_a_crash(tmp_path):
+    """vendor.input_order_used never raises: a missing file, a file that is not a zip archive, an archive
+    without modelDescription.xml, broken XML are each (None, a warning naming the file)."""
+    import zipfile
+    cases = {"missing.fmu": None, "text.fmu": b"not a zip", "empty.fmu": {}, "broken.fmu": {"modelDescription.xml": b"<fmi"}}
+    for name, content in cases.items():
+        path = tmp_path / name
+        if isinstance(content, bytes):
+            path.write_bytes(content)
+        elif isinstance(content, dict):
+            with zipfile.ZipFile(path, "w") as z:
+                for entry, data in content.items():
+                    z.writestr(entry, data)
+        order, warning = vendor.input_order_used(path)
+        assert order is None and warning.startswith(f"{name}: ") and warning.endswith("ignored"), warning
+
+
 def test_connection_orders_follow_the_declarations(make):
     """Order of a connection: the source's maxOutputDerivativeOrder, capped by the orders of the
     inputs a feedthrough output depends on, 0 unless the target interpolates, at most the order asked."""
@@ -147,6 +223,25 @@ def test_connection_orders_follow_the_declarations(make):
             {"ctrl.u1": 0, "ctrl.u2": 0, "plant.u": 0}
     with pytest.raises(ScenarioError, match="coupling_order 7: must be an integer from 0 to 3"):
         simulate(s, coupling_order=7)                     # refused before any FMU is loaded (options.check)
+
+
+@pytest.mark.parametrize("name", ["maglev_tracking_D-1_R2.82", "maglev_regulation_prop2"])
+def test_controllers_get_the_input_derivative_order_they_use(fmu_dir, monkeypatch, name):
+    """The controllers declare orderUsed="1" (they drop higher orders): the master couples their inputs at
+    order 1 from the start instead of passing the plant's and the reference's higher orders, for the same
+    numbers, bit for bit, as with the annotation ignored (the behaviour before it). (The MEMS tracking
+    scenarios couple implicitly: their controllers get order 1 either way.)"""
+    s = read_scenario(Path(__file__).resolve().parents[1] / "scenarios" / name, fmu_dir=fmu_dir)
+    stop = 200 * s.step_size
+    declared = simulate(s, stop_time=stop)
+    monkeypatch.setattr(vendor, "input_order_used", lambda fmu: (None, ""))
+    ignored = simulate(s, stop_time=stop)
+    controller = {k: v for k, v in declared.coupling_orders.items() if k.startswith("controller.")}
+    assert controller and set(controller.values()) == {1}
+    assert max(v for k, v in ignored.coupling_orders.items() if k.startswith("controller.")) > 1
+    assert declared.coupling_orders["plant.u"] == ignored.coupling_orders["plant.u"] >= 1
+    assert declared.columns == ignored.columns and declared.warnings == ignored.warnings == []
+    np.testing.assert_array_equal(np.array(declared.rows), np.array(ignored.rows))
 
 
 def test_fmus_without_derivatives_run_as_a_plain_hold_master(fmu_dir, tmp_path):

@@ -50,6 +50,26 @@ def test_fmpy_validate_finds_no_problems(fmus, identifier):
     assert validate_fmu(str(fmus[identifier])) == []
 
 
+@pytest.mark.parametrize("identifier", ALL)
+def test_the_input_derivative_order_used_is_declared_where_orders_are_dropped(fmus, identifier):
+    """Controllers drop input derivatives above order 1 and say so in emcosim's vendor annotation (FMI 2.0
+    has no attribute for it), between DefaultExperiment and ModelVariables (fmi2ModelDescription's order);
+    plants integrate every order and the Reference has no inputs: no annotation."""
+    from xml.etree import ElementTree as ET
+
+    from emcosim.engine import vendor
+    with zipfile.ZipFile(fmus[identifier]) as z:
+        root = ET.fromstring(z.read("modelDescription.xml"))
+    tags = [child.tag for child in root]
+    declared = root.findall("VendorAnnotations/Tool[@name='org.emcosim']/InputDerivatives")
+    if identifier in CONTROLLERS:
+        assert [d.attrib for d in declared] == [{"orderUsed": "1"}]
+        assert tags.index("VendorAnnotations") == tags.index("DefaultExperiment") + 1 == tags.index("ModelVariables") - 1
+        assert vendor.input_order_used(fmus[identifier]) == (1, "")
+    else:
+        assert "VendorAnnotations" not in tags and vendor.input_order_used(fmus[identifier]) == (None, "")
+
+
 def test_capabilities_and_structure(fmus):
     for identifier, path in fmus.items():
         md = read_model_description(str(path))

@@ -38,7 +38,8 @@ def compile_library(dest: Path) -> Path | None:
     return lib
 
 
-def model_description(kind: str, identifier: str, interpolate: bool, output_order: int) -> str:
+def model_description(kind: str, identifier: str, interpolate: bool, output_order: int, vendor: str | None = None) -> str:
+    """vendor: the content of <VendorAnnotations> (None: no such element)."""
     variables, outputs, initial = [], [], []
     for i, (name, causality, variability, start) in enumerate(MODELS[kind]):
         initial_attr = ' initial="exact"' if causality == "parameter" else (' initial="calculated"' if start is None else "")
@@ -52,7 +53,7 @@ def model_description(kind: str, identifier: str, interpolate: bool, output_orde
 <fmiModelDescription fmiVersion="2.0" modelName="{identifier}" guid="{{toy-{kind}-{identifier}}}" numberOfEventIndicators="0">
   <CoSimulation modelIdentifier="{identifier}" canHandleVariableCommunicationStepSize="true"
     canGetAndSetFMUstate="true" canInterpolateInputs="{str(interpolate).lower()}" maxOutputDerivativeOrder="{output_order}"/>
-  <ModelVariables>
+{"" if vendor is None else f"  <VendorAnnotations>{vendor}</VendorAnnotations>{chr(10)}"}  <ModelVariables>
 {chr(10).join(variables)}
   </ModelVariables>
   <ModelStructure>
@@ -67,10 +68,12 @@ def model_description(kind: str, identifier: str, interpolate: bool, output_orde
 """
 
 
-def build(dest: Path, library: Path, kind: str, identifier: str, interpolate: bool = True, output_order: int = 3) -> Path:
-    """Write dest/<identifier>.fmu: the toy `kind` declaring the given coupling capabilities."""
+def build(dest: Path, library: Path, kind: str, identifier: str, interpolate: bool = True, output_order: int = 3,
+          vendor: str | None = None) -> Path:
+    """Write dest/<identifier>.fmu: the toy `kind` declaring the given coupling capabilities (and
+    <VendorAnnotations> holding `vendor`, if given)."""
     fmu = dest / f"{identifier}.fmu"
     with zipfile.ZipFile(fmu, "w") as z:
-        z.writestr("modelDescription.xml", model_description(kind, identifier, interpolate, output_order))
+        z.writestr("modelDescription.xml", model_description(kind, identifier, interpolate, output_order, vendor))
         z.write(library, f"binaries/linux64/{identifier}.so")
     return fmu

@@ -1,14 +1,14 @@
-"""Binding a scenario to its FMUs: each component's modelDescription read and its connectors checked against
-it, the connections checked (causality, type, units: a unit conversion folded into the connection's
-linear transformation), and the parameter values to set (the .ssv files', then the start values asked
-for), each checked against the variable it sets.
+"""Binding a scenario to its FMUs: each component's modelDescription read (with emcosim's vendor annotation,
+vendor.py) and its connectors checked against it, the connections checked (causality, type, units: a unit
+conversion folded into the connection's linear transformation), and the parameter values to set (the .ssv
+files', then the start values asked for), each checked against the variable it sets.
 """
 from __future__ import annotations
 
 import dataclasses
 from typing import Any
 
-from . import fmi, units
+from . import fmi, units, vendor
 from .errors import OptionError, ScenarioError
 from .instances import Instance
 from .ssd import Scenario, parse_value
@@ -54,6 +54,9 @@ def load(scenario: Scenario, model_exchange: bool = False) -> dict[str, Instance
             raise ScenarioError(f"{comp.source}: component '{comp.name}' is a Model-Exchange-only FMU (no "
                                 "<CoSimulation>): run the scenario as Model Exchange")
         inst = Instance(comp.name, comp.source, md, {v.name: v for v in md.modelVariables})
+        inst.input_order_used, note = vendor.input_order_used(comp.source)
+        if note:
+            inst.notes.append(note)
         for conn in comp.connectors:
             var = inst.variable(conn.name, scenario)
             if var.type != conn.type:

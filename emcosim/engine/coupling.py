@@ -11,7 +11,8 @@ connection the coupling error of a step is O(h^(K+1)) and the global error O(h^(
 Order of a connection (`connection_orders`): the order the source can give (its
 maxOutputDerivativeOrder; for an output with direct feedthrough also no more than the orders on the
 inputs it depends on, since its derivatives follow from theirs by the chain rule), 0 unless the
-target declares canInterpolateInputs, and no more than the order asked for (`coupling_order`;
+target declares canInterpolateInputs, no more than the target declares it uses (emcosim's vendor
+annotation, vendor.py) or was found to accept, and no more than the order asked for (`coupling_order`;
 default: all both ends offer, up to MAX_ORDER). FMUs that declare nothing are coupled with a
 zero-order hold, exactly as without this module.
 
@@ -56,8 +57,9 @@ def connection_orders(instances: dict, connections, level: dict[str, int], depen
     level: full output name -> dependency level (dependencies.levels); depends: full output name ->
     full input names it depends on (direct feedthrough). requested: the order asked for (None: as
     high as both ends allow, up to MAX_ORDER; options.check refuses any other).
-    accepted: component -> the highest input derivative order it was found to accept (FMI 2.0
-    does not declare it; see master.Simulation's first communication point)."""
+    accepted: component -> the highest input derivative order it declares it uses (emcosim's vendor
+    annotation, vendor.py) or was found to accept (FMI 2.0 does not declare it; see
+    master.Simulation's first communication point)."""
     cap = MAX_ORDER if requested is None else requested
     caps = {name: capabilities(inst.model_description) for name, inst in instances.items()}
     order_of: dict[str, int] = {}                      # input full name -> order

@@ -140,8 +140,8 @@ class Simulation:
         self._shadow: dict[str, Instance] | None = None     # the copy for error estimation (stepcontrol)
         self._shadow_own: list[str] = []                     # its own instances (the others are shared)
         self._shadow_used = False
-        self._accepted: dict[str, int] = {}                  # input derivative orders found accepted
         self.instances = binding.load(scenario)
+        self._accepted = declared_orders(self.instances)     # input derivative orders declared or found accepted
         self.connections = binding.check_connections(scenario, self.instances)
         try:
             self._instantiate()
@@ -237,9 +237,10 @@ class Simulation:
         first_step = planned.step_size if tolerance is None else min(planned.step_size, planned.max_step)
         if stepper.derivatives is not None:
             stepper.derivatives.first_step = first_step       # coupling._Guard's first decision
-        result.warnings = [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
-                           for name, inst in self.instances.items() for m in inst.messages
-                           if m.startswith("[warning]")]
+        result.warnings = [f"{name}: {note}" for name, inst in self.instances.items() for note in inst.notes]
+        result.warnings += [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
+                            for name, inst in self.instances.items() for m in inst.messages
+                            if m.startswith("[warning]")]
         result.coupling_orders = dict(stepper.derivatives.orders) if stepper.derivatives is not None else dict(orders)
         return stepper, result, orders
 
@@ -289,7 +290,8 @@ class Simulation:
         communication point a target that refuses an order k > 1 of fmi2SetRealInputDerivatives
         (fmi2Error) is restored to its state before the call (fmi2SetFMUstate) and coupled at order
         k - 1 from then on (`result.coupling_orders` gives the orders used; the FMU's refusal is not
-        kept among its messages)."""
+        kept among its messages). A target that declares the order it uses (vendor.py) gets no order
+        above it from the start (`declared_orders`)."""
         while stepper.derivatives is not None:
             fmus = States([inst for inst in self.instances.values()
                            if inst.model_description.coSimulation.canGetAndSetFMUstate],
@@ -396,6 +398,12 @@ class Simulation:
 
 
 # ---- the parts of a run ---------------------------------------------------------------------------------
+def declared_orders(instances: dict[str, Instance]) -> dict[str, int]:
+    """Component -> the input derivative order it declares it uses (emcosim's vendor annotation, vendor.py:
+    FMI 2.0 has no attribute for it), for the FMUs that declare one: no higher order is passed to them."""
+    return {name: inst.input_order_used for name, inst in instances.items() if inst.input_order_used is not None}
+
+
 def _initialize(scenario: Scenario, instances: dict[str, Instance], parameters, planned: Experiment,
                 stepper: Stepper, tolerance: float | None = None) -> None:
     """Set up, set the parameters, propagate the outputs in initialization mode. With a tolerance (an

@@ -57,11 +57,39 @@ def check_portable(archive: Path, step: float) -> None:
             assert schema.validate(etree.fromstring(files[name])), f"{name}: {schema.error_log.last_error}"
 
 
+def _fixed_step_master(archive: Path) -> ET.Element:
+    root = ET.fromstring(_archive_files(archive)["SystemStructure.ssd"])
+    return root.find("ssd:System/ssd:Annotations/ssc:Annotation/oms:Annotations/oms:SimulationInformation/"
+                     "oms:FixedStepMaster", NS)
+
+
 def test_packed_paper_scenario_is_portable(fmu_dir, tmp_path):
     s = read_scenario(ROOT / "scenarios" / "maglev_tracking_D-1_R0.82", fmu_dir=fmu_dir)
     archive = pack_ssp(s, tmp_path / "m.ssp")
     check_portable(archive, s.step_size)
     assert read_scenario(archive).name == "maglev_tracking_D_1_R0_82"
+
+
+@pytest.mark.parametrize("name", ["maglev_tracking_D-1_R0.82", "mems_regulation_Dd-1"])
+def test_fixed_step_master_carries_the_plants_tolerance(name, fmu_dir, tmp_path):
+    """OMSimulator reads relativeTolerance and absoluteTolerance of the oms:FixedStepMaster and passes
+    the relative one to every FMU's fmi2SetupExperiment (when the archive is imported without a command
+    line --tolerance): the archive carries the plant's rtol there (it carried OMSimulator's 1e-4 before),
+    in the scenario folder and in the packed archive, also for a plant rtol changed in plant.ssv."""
+    s = read_scenario(ROOT / "scenarios" / name, fmu_dir=fmu_dir)
+    rtol = float(s.component("plant").parameters["rtol"].value)
+    assert rtol == 1e-6
+    master = _fixed_step_master(pack_ssp(s, tmp_path / "a.ssp"))
+    assert float(master.get("relativeTolerance")) == rtol and float(master.get("absoluteTolerance")) == rtol
+    source = ET.parse(s.path).getroot().find(".//oms:FixedStepMaster", NS)
+    assert float(source.get("relativeTolerance")) == rtol
+    folder = tmp_path / "tighter"
+    shutil.copytree(ROOT / "scenarios" / name, folder)
+    ssv = folder / "plant.ssv"
+    ssv.write_text(ssv.read_text().replace('<ssv:Parameter name="rtol"><ssv:Real value="1e-06"/>',
+                                           '<ssv:Parameter name="rtol"><ssv:Real value="2.5e-08"/>'))
+    master = _fixed_step_master(pack_ssp(read_scenario(folder, fmu_dir=fmu_dir), tmp_path / "b.ssp"))
+    assert master.get("relativeTolerance") == master.get("absoluteTolerance") == "2.5e-08"
 
 
 def test_packing_makes_any_scenario_portable(fmu_dir, tmp_path):
@@ -81,6 +109,7 @@ def test_packing_makes_any_scenario_portable(fmu_dir, tmp_path):
     assert OMS_ANNOTATION not in ssd.read_text()
     archive = pack_ssp(s, tmp_path / "p.ssp")
     check_portable(archive, s.step_size)
+    assert _fixed_step_master(archive).get("relativeTolerance") == "1e-06"     # the plant's rtol
     a = simulate(read_scenario(archive), stop_time=1e-5, record=["plant.q"])
     b = simulate(s, stop_time=1e-5, record=["plant.q"])
     np.testing.assert_array_equal(a["plant.q"], b["plant.q"])

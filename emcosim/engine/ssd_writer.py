@@ -41,12 +41,14 @@ def identifier(name: str) -> str:
     return ident if ident[:1].isalpha() else f"s_{ident}"
 
 
-def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float) -> str:
+def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size: float,
+                         tolerance: float | None = None) -> str:
     """The text of an .ssd file. `sources` maps component names to the FMU paths as written
     (relative to the .ssd); each component binds the .ssv files in its `parameter_sources`.
     `scenario.notes` become XML comments at the top, `description`s become attributes. The System
     is named `identifier(scenario.name)` and carries OpenModelica's fixed-step annotation; the
-    DefaultExperiment carries the OSP one (both give `step_size`)."""
+    DefaultExperiment carries the OSP one (both give `step_size`); `tolerance` is the OpenModelica
+    annotation's (`oms_annotation`)."""
     ns = " ".join(f'xmlns:{p}="{u}"' for p, u in NS.items())
     desc = f' description="{_esc(scenario.description)}"' if scenario.description else ""
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
@@ -79,7 +81,7 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
         else:
             lines.append(f"      <ssd:Connection {attrs}/>")
     lines.append("    </ssd:Connections>")
-    lines += ["    <ssd:Annotations>", *oms_annotation(step_size, "      "), "    </ssd:Annotations>"]
+    lines += ["    <ssd:Annotations>", *oms_annotation(step_size, "      ", tolerance), "    </ssd:Annotations>"]
     lines.append("  </ssd:System>")
     stop = f' stopTime="{scenario.stop_time!r}"' if scenario.stop_time is not None else ""
     lines.append(f'  <ssd:DefaultExperiment startTime="{scenario.start_time!r}"{stop}>')
@@ -97,15 +99,28 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
     return "\n".join(lines)
 
 
-def oms_annotation(step_size: float, indent: str = "") -> list[str]:
+# OMSimulator's own tolerance of a System (System.h: absoluteTolerance = relativeTolerance = 1e-4), written
+# when no FMU of the scenario says at which tolerance it integrates
+OMS_DEFAULT_TOLERANCE = 1e-4
+
+
+def oms_annotation(step_size: float, indent: str = "", tolerance: float | None = None) -> list[str]:
     """OpenModelica's annotation of a fixed-step co-simulation system (what OMSimulator writes and
-    reads: it must be the first ssc:Annotation of the System's ssd:Annotations)."""
+    reads: it must be the first ssc:Annotation of the System's ssd:Annotations).
+
+    `tolerance` (default OMS_DEFAULT_TOLERANCE) is written as both `relativeTolerance` and
+    `absoluteTolerance`: OMSimulator 2.1.3 reads them from the FixedStepMaster
+    (SystemWC::importFromSSD_SimulationInformation) and passes the relative one to every FMU's
+    fmi2SetupExperiment (ComponentFMUCS::initialize); its command line replaces both by `--tolerance`
+    (oms_RunFile), a Lua script that imports the archive keeps them. The paper scenarios write the
+    plants' `rtol` (`ssp.fixed_step_tolerance`)."""
+    tol = repr(float(OMS_DEFAULT_TOLERANCE if tolerance is None else tolerance))
     return [indent + line for line in [
         f'<ssc:Annotation type="{OMS_ANNOTATION}">',
         "  <oms:Annotations>",
         "    <oms:SimulationInformation>",
-        f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="0.0001" '
-        'relativeTolerance="0.0001"/>',
+        f'      <oms:FixedStepMaster description="oms-ma" stepSize="{step_size!r}" absoluteTolerance="{tol}" '
+        f'relativeTolerance="{tol}"/>',
         "    </oms:SimulationInformation>",
         "  </oms:Annotations>",
         "</ssc:Annotation>"]]

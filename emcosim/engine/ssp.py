@@ -54,8 +54,9 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
 
     With `model_exchange`, the System's OpenModelica annotation (the .ssd's own, if any, is replaced) asks
     OMSimulator for a strongly coupled system: `model_exchange_solver(scenario, relative_tolerance,
-    absolute_tolerance, step_sizes)`. Without it the tolerances and step sizes are not used and the
-    archive is what it always was."""
+    absolute_tolerance, step_sizes)`. Without it the tolerances and step sizes are not used: the System's
+    fixed-step master gets the plants' tolerance (`fixed_step_tolerance`) as its relativeTolerance and
+    absoluteTolerance, the tolerance OMSimulator passes to the FMUs when it imports the archive."""
     if isinstance(scenario, Scenario):
         parsed, ssd = scenario, scenario.path
     else:
@@ -63,6 +64,7 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
         parsed = read_scenario(ssd, fmu_dir=fmu_dir)  # checks the files before packing
     solver = (model_exchange_solver(parsed, relative_tolerance, absolute_tolerance, step_sizes)
               if model_exchange else None)
+    tolerance = None if model_exchange else fixed_step_tolerance(parsed)
     tree = ET.ElementTree(parse(ssd, insert_comments=True))      # any encoding; written as UTF-8
     fmus: dict[str, Path] = {}
     for el in tree.getroot().iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
@@ -74,7 +76,7 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
             raise ScenarioError(f"{ssd}: two different FMUs are named {comp.source.name}")
         fmus[target] = comp.source
         el.set("source", target)
-    _make_portable(tree.getroot(), parsed.step_size, solver)
+    _make_portable(tree.getroot(), parsed.step_size, solver, tolerance)
     ssvs = {src for c in parsed.components for src in c.parameter_sources}
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -88,10 +90,47 @@ def pack_ssp(scenario: str | Path | Scenario, output: str | Path, fmu_dir: str |
     return output
 
 
-def _make_portable(root: ET.Element, step_size: float | None, solver: VariableStepSolver | None = None) -> None:
+def fixed_step_tolerance(scenario: Scenario) -> float | None:
+    """The tolerance an archive's fixed-step master passes to the FMUs: the tightest `rtol` parameter of
+    the scenario's components (its .ssv value, else the FMU's start value), None if no FMU has one.
+
+    OMSimulator passes its System's relativeTolerance to every FMU's fmi2SetupExperiment, and the plants
+    integrate at the tighter of that and their `rtol` (docs/fmus.md): with the plants' own rtol there, an
+    archive imported with its tolerance gives our plants exactly the accuracy the scenario sets, in every
+    engine, and an FMU that takes the master's tolerance instead gets the same number."""
+    values = []
+    for comp in scenario.components:
+        p = comp.parameters.get("rtol")
+        value = p.value if p is not None and p.type == "Real" else _fmu_start(comp.source, "rtol")
+        try:
+            v = float(value) if value is not None else None
+        except (TypeError, ValueError):
+            v = None
+        if v is not None and 0 < v < 1:
+            values.append(v)
+    return min(values) if values else None
+
+
+def _fmu_start(fmu: Path, name: str) -> str | None:
+    """The start value of the Real parameter `name` in the FMU's modelDescription.xml (None if none)."""
+    try:
+        with zipfile.ZipFile(fmu) as z:
+            md = ET.fromstring(z.read("modelDescription.xml"))
+    except (OSError, KeyError, zipfile.BadZipFile, ET.ParseError):
+        return None
+    for sv in md.iterfind("ModelVariables/ScalarVariable"):
+        real = sv.find("Real")
+        if sv.get("name") == name and sv.get("causality") == "parameter" and real is not None:
+            return real.get("start")
+    return None
+
+
+def _make_portable(root: ET.Element, step_size: float | None, solver: VariableStepSolver | None = None,
+                   tolerance: float | None = None) -> None:
     """Identifier names for the model and its System; OpenModelica's fixed-step annotation first in
-    the System's annotations (added when the .ssd has none and a step size is known). With `solver`,
-    its variable-step annotation replaces every OpenModelica annotation of the System, first."""
+    the System's annotations (added when the .ssd has none and a step size is known), with `tolerance`
+    (if not None) as its relative and absolute tolerance (an .ssd's own annotation gets it too). With
+    `solver`, its variable-step annotation replaces every OpenModelica annotation of the System, first."""
     root.set("name", identifier(root.get("name") or "model"))
     system = root.find("ssd:System", NS)
     system.set("name", identifier(system.get("name") or root.get("name")))
@@ -112,12 +151,19 @@ def _make_portable(root: ET.Element, step_size: float | None, solver: VariableSt
         return
     has_oms = annotations is not None and any(a.get("type") == OMS_ANNOTATION
                                               for a in annotations.findall("ssc:Annotation", NS))
-    if has_oms or step_size is None:
+    if not has_oms and step_size is not None:
+        if annotations is None:
+            annotations = ET.SubElement(system, f"{{{NS['ssd']}}}Annotations")
+        xml = (f'<root xmlns:ssc="{NS["ssc"]}" xmlns:oms="{NS["oms"]}">'
+               f'{"".join(oms_annotation(step_size, tolerance=tolerance))}</root>')
+        annotations.insert(0, ET.fromstring(xml)[0])
+    if tolerance is None or annotations is None:
         return
-    if annotations is None:
-        annotations = ET.SubElement(system, f"{{{NS['ssd']}}}Annotations")
-    xml = f'<root xmlns:ssc="{NS["ssc"]}" xmlns:oms="{NS["oms"]}">{"".join(oms_annotation(step_size))}</root>'
-    annotations.insert(0, ET.fromstring(xml)[0])
+    for a in annotations.findall("ssc:Annotation", NS):
+        if a.get("type") == OMS_ANNOTATION:
+            for master in a.iterfind("oms:Annotations/oms:SimulationInformation/oms:FixedStepMaster", NS):
+                master.set("absoluteTolerance", repr(tolerance))
+                master.set("relativeTolerance", repr(tolerance))
 
 
 def _named_parameter_set(path: Path) -> str:

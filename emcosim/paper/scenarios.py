@@ -209,7 +209,7 @@ def scenario_files(case: Case) -> dict[str, str]:
     scenario = Scenario(case.name, Path("SystemStructure.ssd"), components, connections, 0.0, case.stop_time,
                         case.step_size, case.description, notes, coupling=case.coupling)
     files["SystemStructure.ssd"] = system_structure_xml(scenario, {c.name: str(c.source) for c in components},
-                                                        case.step_size)
+                                                        case.step_size, tolerance=PLANT_RTOL)
     return files
 
 

@@ -541,8 +541,11 @@ def _radius(text: str) -> float:
 
 
 def cmd_certify(args) -> int:
+    from .engine.outputs import check_destination, write_file
     from .paper.certify import certify_scenario
 
+    if args.json:
+        check_destination(Path(args.json))        # before the certificate is computed: no link, a writable place
     path = _resolve(args.scenario, _limits(args))
     try:
         cert = certify_scenario(path, radius=args.radius, include_start=args.include_start)
@@ -550,7 +553,8 @@ def cmd_certify(args) -> int:
         raise ScenarioError(f"{path}: {exc}") from None
     print(cert.report())
     if args.json:
-        Path(args.json).write_text(cert.to_json())
+        data = cert.to_json().encode("utf-8")
+        write_file(Path(args.json), lambda f: f.write(data))   # beside, then renamed: never through a link
         print(f"certificate written to {args.json}")
     return 0
 

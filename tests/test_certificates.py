@@ -246,6 +246,27 @@ def test_certify_a_scenario_file():
     assert prop2.check(PH).verdict == HOLDS
 
 
+def test_certify_json_never_writes_through_a_symlink(tmp_path, capsys):
+    """Issue 26's rule for every output: `certify --json` given a link is refused before the certificate
+    is computed (it wrote through the link into the target before), the target untouched; a missing
+    folder is refused too, and a good destination is written beside and renamed into place."""
+    from emcosim.cli import main
+    victim = tmp_path / "victim.conf"
+    victim.write_text("setting = 1\n")
+    link = tmp_path / "cert.json"
+    link.symlink_to(victim)
+    assert main(["certify", "maglev_regulation_prop2", "--json", str(link)]) == 1
+    captured = capsys.readouterr()
+    assert "symbolic link" in captured.err and "Proposition 2" not in captured.out
+    assert victim.read_text() == "setting = 1\n" and link.is_symlink()
+    assert main(["certify", "maglev_regulation_prop2", "--json", str(tmp_path / "none" / "c.json")]) == 1
+    assert "does not exist" in capsys.readouterr().err
+    good = tmp_path / "good.json"
+    assert main(["certify", "maglev_regulation_prop2", "--json", str(good)]) == 0
+    assert json.loads(good.read_text())["checks"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cert.json", "good.json", "victim.conf"]
+
+
 def test_certify_command(tmp_path, capsys):
     from emcosim.cli import main
     out = tmp_path / "cert.json"

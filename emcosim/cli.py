@@ -226,6 +226,9 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--no-plots", action="store_true", help="write the table only")
     sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
     sw.set_defaults(func=cmd_sweep)
+
+    from .devices.commands import add_parser as add_plant_parser
+    add_plant_parser(sub)                          # emcosim plant check | build | scenario (a description file)
     return p
 
 

@@ -74,6 +74,8 @@ def system_structure_xml(scenario: Scenario, sources: dict[str, str], step_size:
     for link in scenario.connections:
         attrs = (f'startElement="{_esc(link.start_element)}" startConnector="{_esc(link.start_connector)}" '
                  f'endElement="{_esc(link.end_element)}" endConnector="{_esc(link.end_connector)}"')
+        if link.suppress_unit_conversion:
+            attrs += ' suppressUnitConversion="true"'
         if link.factor != 1.0 or link.offset != 0.0:
             lines.append(f"      <ssd:Connection {attrs}>")
             lines.append(f'        <ssc:LinearTransformation factor="{link.factor!r}" offset="{link.offset!r}"/>')

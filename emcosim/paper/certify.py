@@ -40,24 +40,45 @@ def _values(component) -> dict:
 
 
 def design_from_scenario(scenario: Scenario) -> Design:
-    """The controller (with its plant model), reference, initial plant state and horizon of a scenario."""
-    ctrl = ref = eta0 = None
+    """The controller (with its plant model), reference, initial plant state and horizon of a scenario. A
+    controller FMU built from a plant description (`emcosim plant build`) is known by the description it
+    carries; a device with several positions tracks one Reference FMU per position (reference_<q_i>)."""
+    from ..devices.registry import register_fmu
+    from ..devices.scenario import StackedReference
+
+    ctrl = eta0 = None
     name = ""
+    references: dict[str, Reference] = {}
+    plant_values: dict | None = None
     for comp in scenario.components:
         model = Path(comp.source).stem
+        if model not in catalog.GAINS and model not in catalog.PLANTS and model != "Reference":
+            register_fmu(comp.source)                  # None for an FMU without a description
         values = _values(comp)
         if model in catalog.GAINS:
             ctrl, name = catalog.controller(model, values), model
         elif model == "Reference":
             kind = values.pop("kind", 1)
-            ref = catalog.reference(int(kind), values)
+            references[comp.name] = catalog.reference(int(kind), values)
         elif model in catalog.PLANTS:
-            eta0 = np.array([values.get(k, np.nan) for k in ("q_0", "p_0", "x_e_0")], dtype=float)
+            plant_values = values
     if ctrl is None:
         raise ValueError(f"{scenario.path}: no controller FMU of this suite ({', '.join(catalog.GAINS)}) in the scenario")
-    if not ctrl.tracking:
-        ref = None
-    horizon = 0.0 if (ref is None or isinstance(ref, Constant)) else float(scenario.stop_time or 0.0)
+    device = catalog.DEVICES[catalog.CONTROLLER_PLANT[name]]
+    if plant_values is not None:
+        eta0 = np.array([plant_values.get(f"{v.name}_0", np.nan) for v in device.states], dtype=float)
+    ref: Reference | StackedReference | None = None
+    if ctrl.tracking and device.n_m == 1 and len(references) == 1:
+        ref = next(iter(references.values()))
+    elif ctrl.tracking and references:
+        missing = [v.name for v in device.q if f"reference_{v.name}" not in references]
+        if missing:
+            raise ValueError(f"{scenario.path}: {name} tracks {len(device.q)} positions; no reference_<name> "
+                             f"component for {', '.join(missing)}")
+        ref = StackedReference([references[f"reference_{v.name}"] for v in device.q])
+    constant = isinstance(ref, Constant) or (isinstance(ref, StackedReference)
+                                             and all(isinstance(r, Constant) for r in ref.generators))
+    horizon = 0.0 if (ref is None or constant) else float(scenario.stop_time or 0.0)
     if ctrl.tracking and ref is None:
         raise ValueError(f"{scenario.path}: {name} tracks a reference, but the scenario has no Reference FMU")
     return Design(ctrl, name, ref, None if eta0 is None or np.any(np.isnan(eta0)) else eta0, horizon)

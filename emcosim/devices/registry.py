@@ -1,0 +1,61 @@
+"""From a plant description file to a registered device: parse it, decide which designs apply, register it.
+
+`emcosim plant ...` starts from the description file; `certify` and the reports start from a scenario whose
+controller FMU was built from one (the FMU carries its description in resources/, DESCRIPTION_RESOURCE).
+"""
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+from components import catalog
+from components.device import Device
+
+DESCRIPTION_RESOURCE = "resources/emcosim_description.toml"   # where `emcosim plant build` puts the file in an FMU
+
+
+def load(path: str | Path, q_d=None, reference=None, horizon: float | None = None):
+    """(description, check report, device) of a description file; the device has the designs the check
+    finds applicable. DescriptionError (a ValueError) names a wrong entry."""
+    from components import description as descriptions
+    from components import plant_check
+
+    desc = descriptions.load(path)
+    report = plant_check.check(desc, q_d=q_d, reference=reference, horizon=horizon)
+    return desc, report, descriptions.device(desc, list(report.designs))
+
+
+def register_description(path: str | Path) -> Device:
+    """Load a description and register its device (components.catalog.register). A device of that name
+    already registered is returned if it is the same (parameters, variables, designs); another one of the same
+    name is refused (ValueError)."""
+    desc, _, device = load(path)
+    known = catalog.DEVICES.get(desc.name)
+    if known is not None:
+        if _signature(known) == _signature(device):
+            return known
+        raise ValueError(f"{path}: a different device named {desc.name!r} is already known; rename it (name = ...)")
+    catalog.register(device)
+    return device
+
+
+def _signature(device: Device) -> tuple:
+    return (device.parameters, device.q, device.p, device.x_e, device.u,
+            {name: d.gains for name, d in device.designs.items()})
+
+
+def register_fmu(fmu: str | Path) -> Device | None:
+    """The device of an FMU built by `emcosim plant build` (None for any other FMU), registered."""
+    try:
+        with zipfile.ZipFile(fmu) as z:
+            if DESCRIPTION_RESOURCE not in z.namelist():
+                return None
+            text = z.read(DESCRIPTION_RESOURCE).decode("utf-8")
+    except (OSError, zipfile.BadZipFile, UnicodeDecodeError):
+        return None
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="emcosim_description_") as tmp:
+        path = Path(tmp) / f"{Path(fmu).stem.split('_')[0]}.toml"
+        path.write_text(text)
+        return register_description(path)

@@ -1,0 +1,255 @@
+"""SSP scenarios for a device: its plant FMU in closed loop with one of its controller FMUs.
+
+A regulation scenario (Proposition 1/2) connects the plant's states to the controller and the controller's
+u back to the plant; the set-point q_d is a controller parameter. A tracking scenario (Theorem 2/3) adds
+one Reference FMU per position q_i (reference_<q_i>), whose jet q*, q*', q*'', q*''' feeds the
+controller's inputs <q_i>_star, <q_i>_star_dot, ... The plant starts at rest at the positions q_0 with
+the electrical state of the assignable equilibrium there (the set E of Section 3), unless the initial
+state is given whole. The files are the same kind as the paper's scenarios/ folders, so `emcosim run`,
+`certify`, `sweep` and `pack` take them.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from components import catalog
+from components.device import Device, VariableSpec
+from components.ph_plant import Jet
+from components.references import KINDS
+
+from ..engine.ssd import PARAMETER_SET, Component, Connection, Connector, Parameter, Scenario
+from ..engine.ssd_writer import parameter_set_xml, system_structure_xml
+
+REFERENCE_OUT = ("q_star", "q_star_dot", "q_star_ddot", "q_star_dddot")   # the Reference FMU's outputs
+PLANT_RTOL = 1e-6          # the plant FMU's integration tolerance (as the paper's scenarios)
+
+
+@dataclass
+class Setup:
+    """What a device scenario is: the design, its gains, the set-point or references, the start and the horizon.
+
+    design       "Proposition1" | "Proposition2" | "Theorem2" | "Theorem3" (one the device has)
+    gains        gain values by FMU name (the design's defaults where absent)
+    references   tracking: one dict per position, {"kind": "constant" | "sinusoid" | "smooth_step", and that
+                 kind's parameters}; regulation: empty
+    q_0          initial positions (at rest, electrical state of the equilibrium there); None: q_d or q*(0)
+    eta_0        the whole initial state (q, p, x_e) instead of q_0
+    """
+
+    design: str
+    stop_time: float
+    step_size: float
+    gains: dict[str, float] = field(default_factory=dict)
+    references: list[dict] = field(default_factory=list)
+    q_0: Sequence[float] | None = None
+    eta_0: Sequence[float] | None = None
+    name: str | None = None
+
+
+def reference_components(q: Sequence[VariableSpec], references: Sequence[Mapping], owner: str) -> list:
+    """The components.references generators of a tracking setup, one per position q_i (ValueError naming
+    the wrong entry)."""
+    if len(references) != len(q):
+        raise ValueError(f"{owner} tracks {len(q)} position(s) ({', '.join(v.name for v in q)}): give one "
+                         f"reference for each, not {len(references)}")
+    out = []
+    for spec, v in zip(references, q):
+        values = dict(spec)
+        kind = values.pop("kind", "sinusoid")
+        known = KINDS[kind].PARAMETERS if kind in KINDS else {}
+        if kind in KINDS and set(values) - set(known):
+            raise ValueError(f"reference of {v.name}: a {kind} reference has no parameter(s) "
+                             f"{sorted(set(values) - set(known))}; its parameters: {sorted(known)}")
+        try:
+            out.append(catalog.reference(kind, values))
+        except ValueError as exc:
+            raise ValueError(f"reference of {v.name}: {exc}") from None
+    return out
+
+
+class StackedReference:
+    """One reference generator per position as one reference: jet(t) of n_m-vectors (Jet), values(t)."""
+
+    def __init__(self, generators: Sequence):
+        self.generators = list(generators)
+
+    def jet(self, t: float) -> Jet:
+        return stacked_jet(self.generators, t)
+
+
+def stacked_jet(references: Sequence, t: float) -> Jet:
+    """The reference jet of every position at time t (Jet of n_m-vectors)."""
+    values = np.array([r.values(t) for r in references], dtype=float)      # n_m x 4
+    return Jet(*values.T)
+
+
+def initial_state(device: Device, setup: Setup, controller) -> np.ndarray:
+    """eta(0): given whole, or at rest at q_0 with the equilibrium's x_e (Section 3, set E); q_0 defaults to the
+    set-point (regulation) or q*(0) (tracking)."""
+    plant = controller.plant
+    if setup.eta_0 is not None:
+        eta = np.asarray(setup.eta_0, dtype=float)
+        if eta.shape != (plant.n,):
+            raise ValueError(f"the initial state has {eta.size} entries; {device.name} has {plant.n} "
+                             f"({', '.join(v.name for v in device.states)})")
+    else:
+        if setup.q_0 is not None:
+            q_0 = np.asarray(setup.q_0, dtype=float).reshape(-1)
+        elif controller.tracking:
+            q_0 = stacked_jet(reference_components(device.q, setup.references, device.name), 0.0).q
+        else:
+            q_0 = plant.split(controller.target())[0]
+        if q_0.shape != (device.n_m,):
+            raise ValueError(f"q_0 has {q_0.size} entries; {device.name} has {device.n_m} position(s)")
+        try:
+            eta = plant.equilibrium(q_0)
+        except ValueError as exc:
+            raise ValueError(f"no assignable equilibrium at q_0 = {q_0.tolist()} to start from: {exc}") from None
+    plant.check_state(eta)
+    return eta
+
+
+def _doc(unit: str | None, text: str) -> str:
+    return f"{text} [{unit}]" if unit and unit != "1" else text
+
+
+def scenario_files(device: Device, setup: Setup, fmu_dir: str) -> dict[str, str]:
+    """File name -> text of the scenario folder; `fmu_dir` is the FMUs' folder as the .ssd should name it
+    (relative to the scenario folder, or absolute). A ValueError says what is wrong with the setup (an
+    unknown design or gain, an infeasible reference, an initial state outside the domain)."""
+    controller, gains, references = _design(device, setup)
+    design = device.designs[setup.design]
+    identifier = device.controller_identifier(setup.design)
+    eta_0 = initial_state(device, setup, controller)
+    name = setup.name or f"{device.name.lower()}_{setup.design.lower()}"
+    files = _parameter_sets(device, setup, gains, eta_0)
+
+    def fmu(model: str) -> Path:
+        return Path(os.path.join(fmu_dir, f"{model}.fmu"))
+
+    states, inputs = [v.name for v in device.states], [v.name for v in device.u]
+    jet_inputs = [n for n, _, _ in device.jet_names()] if design.tracking else []
+    components = [Component(f"reference_{v.name}", fmu("Reference"), [Connector(n, "output", "Real") for n in REFERENCE_OUT],
+                            parameter_sources=[f"reference_{v.name}.ssv"], description=f"reference {v.name}*(t)")
+                  for v in (device.q if references else ())]
+    components.append(Component("controller", fmu(identifier),
+                                [Connector(n, "input", "Real") for n in states + jet_inputs]
+                                + [Connector(n, "output", "Real") for n in inputs],
+                                parameter_sources=["controller.ssv"], description=f"static controller {identifier}"))
+    components.append(Component("plant", fmu(device.name),
+                                [Connector(n, "input", "Real") for n in inputs]
+                                + [Connector(n, "output", "Real") for n in states + ["H"]],
+                                parameter_sources=["plant.ssv"], description=f"{device.name} plant"))
+    connections = [Connection("plant", s, "controller", s) for s in states]
+    for i, v in enumerate(device.q if references else ()):
+        # the Reference FMU's outputs are declared in m (m/s, ...): a position in another unit (rad) takes
+        # the numbers as they are (SSP suppressUnitConversion), which its reference's parameters are given in
+        connections += [Connection(f"reference_{v.name}", out, "controller", jet_inputs[order * device.n_m + i],
+                                   suppress_unit_conversion=v.unit != "m")
+                        for order, out in enumerate(REFERENCE_OUT)]
+    connections += [Connection("controller", n, "plant", n) for n in inputs]
+    if references:
+        what = "tracking of " + ", ".join(f"{v.name}* ({s.get('kind', 'sinusoid')})" for v, s in zip(device.q, setup.references))
+    else:
+        what = f"regulation to q_d = {[float(x) for x in controller.plant.split(controller.target())[0]]}"
+    description = f"{device.name} {what} with {setup.design}"
+    notes = [f"{name}: {description}.",
+             f"Initial state ({', '.join(states)}) = {[float(x) for x in eta_0]}"
+             + (" (given)" if setup.eta_0 is not None else ": at rest, with the electrical state of the equilibrium there"),
+             f"Communication step {setup.step_size:g} s, stop time {setup.stop_time:g} s.",
+             "Written by `emcosim plant scenario` from the device's description."]
+    scenario = Scenario(name, Path("SystemStructure.ssd"), components, connections, 0.0, setup.stop_time,
+                        setup.step_size, description, notes)
+    files["SystemStructure.ssd"] = system_structure_xml(scenario, {c.name: str(c.source) for c in components},
+                                                        setup.step_size, tolerance=PLANT_RTOL)
+    return files
+
+
+def _design(device: Device, setup: Setup) -> tuple:
+    """(controller, gain values, reference generators) of a setup, each checked (ValueError)."""
+    if setup.design not in device.designs:
+        raise ValueError(f"{device.name}: no design {setup.design!r}; the designs that apply: {sorted(device.designs)}")
+    if not (math.isfinite(setup.stop_time) and setup.stop_time > 0):
+        raise ValueError(f"stop time {setup.stop_time} must be finite and > 0")
+    if not (math.isfinite(setup.step_size) and 0 < setup.step_size <= setup.stop_time):
+        raise ValueError(f"step size {setup.step_size} must be finite, > 0 and at most the stop time")
+    design = device.designs[setup.design]
+    identifier = device.controller_identifier(setup.design)
+    unknown = set(setup.gains) - set(design.gains)
+    if unknown:
+        raise ValueError(f"{identifier}: unknown gain(s) {sorted(unknown)}; its gains: {sorted(design.gains)}")
+    gains = {name: float(setup.gains.get(name, spec.default)) for name, spec in design.gains.items()}
+    controller = device.controller(setup.design, gains)                  # checks the gains
+    if not design.tracking and setup.references:
+        raise ValueError(f"{identifier} regulates to q_d (a gain): it takes no reference")
+    references = reference_components(device.q, setup.references, identifier) if design.tracking else []
+    for t in np.linspace(0.0, setup.stop_time, 201) if references else ():
+        try:
+            controller.target(stacked_jet(references, float(t)))            # Definition 1: x_e* exists
+        except ValueError as exc:
+            raise ValueError(f"the reference is not feasible at t = {t:g} s: {exc}") from None
+    return controller, gains, references
+
+
+def _parameter_sets(device: Device, setup: Setup, gains: Mapping[str, float], eta_0: np.ndarray) -> dict[str, str]:
+    """plant.ssv (parameters, initial state, rtol), controller.ssv (its model of the plant, gains) and one
+    reference_<q_i>.ssv per tracked position."""
+    design = device.designs[setup.design]
+    plant = [Parameter(p.name, "Real", float(p.default), p.unit, _doc(p.unit, p.description))
+             for p in device.parameters.values()]
+    start = [Parameter(f"{v.name}_0", "Real", float(x), v.unit, _doc(v.unit, f"initial value of {v.name}: {v.description}"))
+             for v, x in zip(device.states, eta_0)]
+    rtol = Parameter("rtol", "Real", PLANT_RTOL, None, "relative tolerance of the plant's internal integrator")
+    controller = [Parameter(p.name, p.type, p.value, p.unit, f"plant parameter (same as plant.ssv): {p.description}")
+                  for p in plant]
+    controller += [Parameter(k, "Real", v, design.gains[k].unit, _doc(design.gains[k].unit, design.gains[k].description))
+                   for k, v in gains.items()]
+    files = {"plant.ssv": parameter_set_xml(PARAMETER_SET, plant + start + [rtol]),
+             "controller.ssv": parameter_set_xml(PARAMETER_SET, controller)}
+    codes = {kind: code for code, kind in catalog.REFERENCE_KINDS.items()}
+    specs = catalog.REFERENCE_PARAMETERS
+    for v, spec in zip(device.q, setup.references if design.tracking else ()):
+        kind = codes[spec.get("kind", "sinusoid")]
+        params = [Parameter("kind", "Integer", kind, None, "0 constant, 1 sinusoid, 2 smooth step")]
+        params += [Parameter(k, "Real", float(x), specs[k].unit, _doc(specs[k].unit, specs[k].description))
+                   for k, x in spec.items() if k != "kind"]
+        files[f"reference_{v.name}.ssv"] = parameter_set_xml(PARAMETER_SET, params)
+    return files
+
+
+def parse_reference(text: str) -> dict:
+    """'KIND[:NAME=VALUE,...]' (e.g. 'sinusoid:offset=0.001,amplitude=3e-4,omega=31.4') as a reference spec."""
+    kind, _, rest = text.partition(":")
+    kind = kind.strip()
+    if kind not in catalog.REFERENCE_KINDS.values():
+        raise ValueError(f"reference {text!r}: kind {kind!r} is not one of {sorted(catalog.REFERENCE_KINDS.values())}")
+    spec: dict = {"kind": kind}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, value = item.partition("=")
+        try:
+            spec[key.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"reference {text!r}: {item!r} is not NAME=NUMBER") from None
+        if not eq:
+            raise ValueError(f"reference {text!r}: {item!r} is not NAME=NUMBER")
+    return spec
+
+
+def gain_values(items: Sequence[str]) -> Mapping[str, float]:
+    """['NAME=VALUE', ...] as a mapping (ValueError naming a malformed item)."""
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq:
+            raise ValueError(f"--gain {item!r} is not NAME=NUMBER")
+    return out

@@ -46,6 +46,14 @@ class _Printer(StrPrinter):
     def _print_Rational(self, expr):
         return f"({expr.p}/{expr.q})"
 
+    def _print_Mul(self, expr):
+        c, rest = expr.as_coeff_Mul()
+        if isinstance(c, sympy.Rational) and c.q > 1 and c.q & (c.q - 1) == 0 and rest != 1:
+            # a coefficient with a power-of-two denominator: one exact multiplication (0.5*x, not x/2)
+            text = self._print(rest)
+            return f"{float(c)!r}*" + (f"({text})" if isinstance(rest, sympy.Add) else text)
+        return super()._print_Mul(expr)
+
     def _print_Pi(self, expr):
         return "_pi"
 

@@ -243,3 +243,25 @@ def test_unequal_dimensions_refuse_feasible_state():
     z = np.zeros(2)
     with pytest.raises(NotImplementedError, match="n_e = n_m"):
         P.feasible_state(Jet(z, z, z, z))
+
+
+def test_issue_file_builds_the_maglev():
+    from tests.test_description import ISSUE_MAGLEV
+    P, M = codegen.plant_class(parse(ISSUE_MAGLEV, "issue25.toml"))(), maglev.Maglev()
+    rng = np.random.default_rng(2)
+    for eta in _states("Maglev", rng, 10):
+        assert close(P.f(eta, np.array([1.0])), M.f(eta, np.array([1.0]))) and P.H(eta) == M.H(eta)
+    assert P.q_max == M.q_max and close(P.Gamma, M.Gamma)
+    dev = device(parse(ISSUE_MAGLEV))
+    C = dev.controller("Theorem3", {"R_e_bar": 2.82, "k_c": 10.0, "D_d": -0.5})
+    B = Theorem3(HandMaglev(), 2.82, k_c=10.0, D_d=-0.5)
+    eta, jet = np.array([0.002, 0.01, 1.0]), Sinusoid(offset=0.0025, amplitude=0.001, omega=5.0).jet(0.3)
+    assert close(C.u(eta, jet), B.u(eta, jet))
+
+
+def test_x_e_sign_picks_the_negative_root():
+    text = BAR_TOML.replace('domain = [', 'x_e_sign = -1\ndomain = [')
+    P, Q = codegen.plant_class(parse(text))(), codegen.plant_class(BAR)()
+    jet = VectorSinusoid([0.004, 0.01], [0.001, 0.005], [3.0, 2.0], [0.0, 0.5]).jet(0.4)
+    (a, xa), (b, xb) = P.feasible_state(jet), Q.feasible_state(jet)
+    assert np.all(a[4:] < 0) and close(a[4:], -b[4:]) and close(xa, -xb)

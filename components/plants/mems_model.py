@@ -58,7 +58,7 @@ class MEMS(_DescribedOneDOF):
 
     def V_s(_self, q):
         """Potential energy V(q) [J]."""
-        return _self._p_a1*q**2/2 + _self._p_a2*q**4/4
+        return 0.5*_self._p_a1*q**2 + 0.25*_self._p_a2*q**4
 
     def dV(_self, q):
         """V'(q)."""

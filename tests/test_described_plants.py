@@ -265,3 +265,41 @@ def test_x_e_sign_picks_the_negative_root():
     jet = VectorSinusoid([0.004, 0.01], [0.001, 0.005], [3.0, 2.0], [0.0, 0.5]).jet(0.4)
     (a, xa), (b, xb) = P.feasible_state(jet), Q.feasible_state(jet)
     assert np.all(a[4:] < 0) and close(a[4:], -b[4:]) and close(xa, -xb)
+
+
+def test_one_dof_nonlinear_domain_and_variable_mass():
+    from tests.test_description import ISSUE_MAGLEV
+    text = ISSUE_MAGLEV.replace('domain = ["q < c"]', 'domain = ["q^2 < c^2"]')
+    P = codegen.plant_class(parse(text))()
+    assert not P.linear_domain and P.domain_margin(np.array([0.001, 0, 0])) == pytest.approx(0.005 ** 2 - 0.001 ** 2)
+    with pytest.raises(DomainError, match=r"q = -0.006 m violates q\^2 < c\^2 \(c = 0.005 m\)"):
+        P.check_state(np.array([-0.006, 0.0, 0.0]))
+    # M(q): the general path with n_m = n_e = 1 agrees with the scalar formulas of Definition 1
+    text = ISSUE_MAGLEV.replace('M   = "m"', 'M   = "m*(1 + q^2)"')
+    P = codegen.plant_class(parse(text))()
+    assert not P.constant_mass
+    q, qd, qdd, qddd = 0.002, 0.01, 0.3, -2.0
+    eta, x_dot = P.feasible_state(Jet(*(np.array([v]) for v in (q, qd, qdd, qddd))))
+    m, b, k = 0.0844, 0.828, 0.64042
+    M, dM = m * (1 + q * q), 2 * m * q
+    p = M * qd
+    F = M * qdd + dM * qd * qd + b - 0.5 * p * p * dM / M ** 2     # p' + grad V + 1/2 p^2 d(1/M)/dq
+    assert close(eta, [q, p, np.sqrt(2 * k * F)])
+    jet_c = Jet(*(np.array([v]) for v in (complex(q, qd * H), complex(qd, qdd * H), complex(qdd, qddd * H),
+                                          complex(qddd, 0.0))))
+    assert close(x_dot, np.imag(P.feasible_state(jet_c)[0][2:]) / H, 1e-9)
+
+
+def test_catalog_gains_equal_the_descriptions_gains():
+    """The catalog's hand-written designs and the descriptions' devices name the same gains, with the same
+    defaults, units and conditions (only the descriptive texts differ)."""
+    from components import catalog
+    from components.description import load
+    for name, file in (("MEMS", "mems"), ("Maglev", "maglev")):
+        old = catalog.DEVICES[name]
+        new = device(load(f"components/plants/{file}.toml"), list(old.designs))
+        assert old.parameters == new.parameters and (old.q, old.p, old.x_e, old.u) == (new.q, new.p, new.x_e, new.u)
+        for design, d in old.designs.items():
+            g = new.designs[design].gains
+            assert [(p.name, p.default, p.unit, p.condition) for p in d.gains.values()] == \
+                [(p.name, p.default, p.unit, p.condition) for p in g.values()], design

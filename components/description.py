@@ -45,6 +45,8 @@ NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 DEVICE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*\Z")
 NUMBER = re.compile(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")"}
+MAX_EXPONENT = 1000
+"""Largest constant exponent accepted in an expression."""
 SAMPLE_POINTS = 200
 """Points of the domain at which a property sympy cannot decide is checked (docs/plant-description.md)."""
 
@@ -284,11 +286,16 @@ class _Parser:
             raise self.error(table, entry, "empty expression")
         local = {**{k: v for k, v in FUNCTIONS.items()}, **self.symbols}
         glob = {"__builtins__": {}, "Integer": sympy.Integer, "Float": sympy.Float, "Rational": sympy.Rational,
+                "Add": sympy.Add, "Mul": sympy.Mul, "Pow": sympy.Pow,
                 "Symbol": sympy.Symbol}
         try:
-            result = parse_expr(" ".join(pieces), local_dict=local, global_dict=glob)
+            tree = parse_expr(" ".join(pieces), local_dict=local, global_dict=glob, evaluate=False)
         except Exception as e:  # sympy reports malformed input with several exception types
             raise self.error(table, entry, f"{value!r} is not an expression ({type(e).__name__})") from None
+        for node in sympy.preorder_traversal(tree):       # 9**9**9 would take forever to evaluate exactly
+            if isinstance(node, sympy.Pow) and node.exp.is_number and not abs(node.exp.evalf(15)) <= MAX_EXPONENT:
+                raise self.error(table, entry, f"{value!r}: an exponent {node.exp} beyond +-{MAX_EXPONENT}")
+        result = tree.doit()
         if not isinstance(result, sympy.Expr) or result.has(sympy.zoo, sympy.nan, sympy.oo, sympy.I):
             raise self.error(table, entry, f"{value!r} is not a finite real expression")
         return result

@@ -303,3 +303,18 @@ def test_catalog_gains_equal_the_descriptions_gains():
             g = new.designs[design].gains
             assert [(p.name, p.default, p.unit, p.condition) for p in d.gains.values()] == \
                 [(p.name, p.default, p.unit, p.condition) for p in g.values()], design
+
+
+def test_functions_take_floats_and_complex_numbers():
+    from tests.test_description import ISSUE_MAGLEV
+    text = ISSUE_MAGLEV.replace('V   = "b*q"', 'V   = "b*q + b*c*exp(q/c) + b*c*cos(q/c)^2"') \
+        .replace('Psi = "(c - q)/k"', 'Psi = "sqrt(c - q)/k + 1/(k*(1 + tanh(q/c)^2))"')
+    desc = parse(text)
+    source = codegen.module_source(desc)
+    assert "import sympy" not in source and "_sqrt(" in source and "_exp(" in source
+    P = codegen.plant_class(desc)()
+    for q in (-0.01, 0.001, 0.0049):
+        for f, df in (("V_s", "dV"), ("dV", "d2V"), ("psi", "dpsi"), ("dpsi", "d2psi")):
+            assert close(getattr(P, df)(q), np.imag(getattr(P, f)(complex(q, H))) / H), (f, q)
+    with pytest.raises(DomainError, match="violates q < c"):
+        P.check_state(np.array([0.006, 0.0, 0.0]))

@@ -79,6 +79,7 @@ BAD = [
     ("python escape", lambda t: _replace(t, 'V   = "b*q"', 'V   = "__import__(\'os\')"'), r"\[model\] V: "),
     ("attribute", lambda t: _replace(t, 'V   = "b*q"', 'V   = "b.real"'), r"\[model\] V: "),
     ("lambda", lambda t: _replace(t, 'V   = "b*q"', 'V   = "lambda: 1"'), r"\[model\] V: "),
+    ("power tower", lambda t: _replace(t, 'V   = "b*q"', 'V   = "b*q*9**9**9"'), r"\[model\] V: .*exponent"),
     ("complex number", lambda t: _replace(t, 'V   = "b*q"', 'V   = "b*q + 1j"'), r"\[model\] V: number"),
     ("state in constant", lambda t: _replace(t, 'R_e = "R_e"', 'R_e = "R_e + q"'), r"\[model\] R_e: 'q' may not appear"),
     ("x_e in V", lambda t: _replace(t, 'V   = "b*q"', 'V   = "b*q*x_e"'), r"\[model\] V: 'x_e' may not appear"),

@@ -4,6 +4,10 @@ of u along one direction (Controller.u_derivative: one complex-step evaluation) 
 
     .venv/bin/python benchmarks/bench_laws.py [--before REV] [-n 20000] [--repeat 7]
 
+Then the plants' model functions (what PlantStepper and the laws call): the hand-written MEMS and maglev
+(tests/hand_written_plants.py, components/ before issue 25) against the ones generated from
+components/plants/*.toml, side by side.
+
 "before" is components/ as committed at git revision REV (default 1dda5db), imported as a separate
 package beside the working tree's. Both are timed alternately `--repeat` times on the same inputs near
 each controller's target (timeit loops of n calls); the fastest pass of each counts.
@@ -23,7 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from components import catalog  # noqa: E402
+from components import catalog, maglev, mems  # noqa: E402
+from tests.hand_written_plants import HandMaglev, HandMEMS  # noqa: E402
 
 # controller, gains, inputs (q, p, x_e[, q*, q*', q*'', q*'''])
 CASES = [("MEMS_Proposition1", {}, (2e-5, 1e-10, 3e-11)),
@@ -70,6 +75,28 @@ def main(argv=None) -> None:
         print(f"{name:20s} {best['before']:10.2f} {best['after']:10.2f} {best['after'] / best['before']:12.2f}x | "
               f"{best['derivative']:13.2f} {best['derivative'] / best['after']:6.1f}x "
               f"{best['derivative'] / best['derivative before']:15.2f}x")
+    plant_functions(args.n, args.repeat)
+
+
+def plant_functions(n: int, repeat: int) -> None:
+    """Hand-written vs generated model functions, best of `repeat` alternating passes of n calls."""
+    print(f"\nplant model functions: hand-written (before) vs generated from the description (after), "
+          f"best of {repeat} passes of {n} calls.\n")
+    print(f"{'plant.function':20s} {'hand us':>10s} {'generated us':>13s} {'ratio':>7s}")
+    for label, hand, gen, eta in (("MEMS", HandMEMS(), mems.MEMS(), (2e-5, 1e-10, 3e-11)),
+                                  ("Maglev", HandMaglev(), maglev.Maglev(), (0.0025, 0.001, 0.2))):
+        q = eta[0]
+        state = __import__("numpy").array(eta)
+        jet = (q, 0.01 * q, 0.0, 0.0)
+        for fn, call in (("V_s", lambda P: P.V_s(q)), ("dV", lambda P: P.dV(q)), ("psi", lambda P: P.psi(q)),
+                         ("dpsi", lambda P: P.dpsi(q)), ("d2psi", lambda P: P.d2psi(q)), ("H", lambda P: P.H(state)),
+                         ("feasible_scalar", lambda P: P.feasible_scalar(*jet)),
+                         ("check_state", lambda P: P.check_state(state)), ("jacobian", lambda P: P.jacobian(state))):
+            best = {"hand": float("inf"), "gen": float("inf")}
+            for _ in range(repeat):
+                for key, P in (("hand", hand), ("gen", gen)):
+                    best[key] = min(best[key], timeit.timeit(lambda: call(P), number=n) / n * 1e6)
+            print(f"{label + '.' + fn:20s} {best['hand']:10.3f} {best['gen']:13.3f} {best['gen'] / best['hand']:6.2f}x")
 
 
 if __name__ == "__main__":

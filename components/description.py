@@ -1,0 +1,535 @@
+"""A plant description: one weakly coupled EM device (eq. open-loop elecmech) read from a TOML file.
+
+The file names the variables (q, p, x_e, u with units and descriptions), the physical parameters
+(default, unit, description, condition) and the model as sympy expressions in those names:
+M(q), V(q), Psi(q) (eq. elec energy), the constant matrices R_m, J_e, R_e, G_e, the admissible domain
+(strict inequalities in q) and, optionally, Gamma and phi of Assumptions 2/4 (eq. assHereg). The format
+and the checks made here are documented in docs/plant-description.md.
+
+Expressions are never evaluated as Python: each is tokenized and may hold only known variable and
+parameter names, the functions of FUNCTIONS, numbers, + - * / ** ^ and parentheses; it is then parsed by
+sympy with an explicit namespace and no builtins. Every bad input raises DescriptionError naming the file,
+the table and the entry.
+"""
+from __future__ import annotations
+
+import io
+import keyword
+import math
+import re
+import tokenize
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import sympy
+from sympy.parsing.sympy_parser import parse_expr
+
+from .device import VariableSpec
+from .parameters import Parameter
+
+FUNCTIONS: dict[str, Any] = {
+    "sqrt": sympy.sqrt, "exp": sympy.exp, "log": sympy.log, "sin": sympy.sin, "cos": sympy.cos,
+    "tan": sympy.tan, "sinh": sympy.sinh, "cosh": sympy.cosh, "tanh": sympy.tanh, "atan": sympy.atan,
+    "asin": sympy.asin, "acos": sympy.acos, "pi": sympy.pi,
+}
+CONDITIONS = ("> 0", ">= 0", "any")
+MODEL_REQUIRED = ("M", "V", "Psi", "R_m", "J_e", "R_e", "G_e")
+MODEL_OPTIONAL = ("domain", "Gamma", "phi", "x_e_sign")
+VARIABLE_KINDS = ("q", "p", "x_e", "u")
+TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller"}
+CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c")
+NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
+DEVICE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*\Z")
+NUMBER = re.compile(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
+OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")"}
+SAMPLE_POINTS = 200
+"""Points of the domain at which a property sympy cannot decide is checked (docs/plant-description.md)."""
+
+
+class DescriptionError(ValueError):
+    """A wrong plant description; the message starts with `<file>: [<table>] <entry>: `."""
+
+
+@dataclass(frozen=True)
+class Description:
+    """A parsed, checked plant description (eq. open-loop elecmech with H_e = x_e^T Psi(q) x_e / 2).
+
+    Sympy objects in the symbols q_symbols, p_symbols, x_e_symbols, u_symbols, parameter_symbols.
+    domain_margins[j] > 0 is the j-th inequality of `domain` (each `g(q) > 0`). Gamma / phi of
+    Assumptions 2/4 are "given" in the file, "derived" (Psi affine in q with diagonal dPsi/dq_k) or None.
+    `notes` says how each property was decided (symbolically, or at which sample points).
+    """
+
+    name: str
+    description: str
+    source: str
+    q: tuple[VariableSpec, ...]
+    p: tuple[VariableSpec, ...]
+    x_e: tuple[VariableSpec, ...]
+    u: tuple[VariableSpec, ...]
+    parameters: dict[str, Parameter]
+    M: sympy.Matrix
+    V: sympy.Expr
+    Psi: sympy.Matrix
+    R_m: sympy.Matrix
+    J_e: sympy.Matrix
+    R_e: sympy.Matrix
+    G_e: sympy.Matrix
+    domain: tuple[Any, ...]
+    domain_margins: tuple[sympy.Expr, ...]
+    domain_text: tuple[str, ...]
+    Gamma: sympy.Matrix | None
+    phi: sympy.Expr | None
+    gamma_source: str | None
+    x_e_sign: float
+    q_symbols: tuple[sympy.Symbol, ...]
+    p_symbols: tuple[sympy.Symbol, ...]
+    x_e_symbols: tuple[sympy.Symbol, ...]
+    u_symbols: tuple[sympy.Symbol, ...]
+    parameter_symbols: tuple[sympy.Symbol, ...]
+    controller: dict = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+    @property
+    def n_m(self) -> int:
+        return len(self.q)
+
+    @property
+    def n_e(self) -> int:
+        return len(self.x_e)
+
+    @property
+    def defaults(self) -> dict[sympy.Symbol, float]:
+        """The parameter symbols at their default values."""
+        return {s: self.parameters[s.name].default for s in self.parameter_symbols}
+
+    @property
+    def constant_mass(self) -> bool:
+        return not (self.M.free_symbols & set(self.q_symbols))
+
+
+def load(path: str | Path) -> Description:
+    """Read and check the description file at `path`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise DescriptionError(f"{path}: [file] {path.name}: cannot be read ({e.strerror})") from None
+    return parse(text, str(path))
+
+
+def parse(text: str, source: str = "<string>") -> Description:
+    """Parse and check a description given as TOML text (`source` names it in errors)."""
+    return _Parser(source).run(text)
+
+
+class _Parser:
+    def __init__(self, source: str):
+        self.source = source
+        self.notes: list[str] = []
+
+    def error(self, table: str, entry: str, message: str) -> DescriptionError:
+        return DescriptionError(f"{self.source}: [{table}] {entry}: {message}")
+
+    # ---- the file -----------------------------------------------------------------------------------
+    def run(self, text: str) -> Description:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise self.error("file", "TOML", f"syntax error: {e}") from None
+        extra = set(data) - TOP_KEYS
+        if extra:
+            raise self.error("top level", sorted(extra)[0], f"unknown key; the keys are {sorted(TOP_KEYS)}")
+        for key in ("name", "description", "variables", "parameters", "model"):
+            if key not in data:
+                raise self.error("top level", key, "missing")
+        name = data["name"]
+        if not isinstance(name, str) or not DEVICE_NAME.match(name):
+            raise self.error("top level", "name", f"{name!r} is not an identifier [A-Za-z][A-Za-z0-9]* (the FMU name)")
+        if not isinstance(data["description"], str):
+            raise self.error("top level", "description", "must be a string")
+        variables = self.variables(data["variables"])
+        parameters = self.parameters(data["parameters"], "parameters", set(variables["names"]))
+        self.symbols: dict[str, sympy.Symbol] = {}
+        for kind in VARIABLE_KINDS:
+            for v in variables[kind]:
+                self.symbols[v.name] = sympy.Symbol(v.name, real=True)
+        for p in parameters.values():
+            assumption = {"> 0": {"positive": True}, ">= 0": {"nonnegative": True}}.get(p.condition, {"real": True})
+            self.symbols[p.name] = sympy.Symbol(p.name, **assumption)
+        self.parameters_ = parameters
+        self.q_sym = tuple(self.symbols[v.name] for v in variables["q"])
+        self.x_sym = tuple(self.symbols[v.name] for v in variables["x_e"])
+        self.par_sym = tuple(self.symbols[n] for n in parameters)
+        self.defaults = {self.symbols[n]: p.default for n, p in parameters.items()}
+        self.n_m, self.n_e = len(variables["q"]), len(variables["x_e"])
+        model = self.model(data["model"])
+        controller = data.get("controller", {})
+        if not isinstance(controller, dict):
+            raise self.error("controller", "controller", "must be a table")
+        self.controller_table(controller, set(variables["names"]) | set(parameters))
+        return Description(
+            name=name, description=data["description"], source=self.source,
+            q=variables["q"], p=variables["p"], x_e=variables["x_e"], u=variables["u"], parameters=parameters,
+            **model, q_symbols=self.q_sym, p_symbols=tuple(self.symbols[v.name] for v in variables["p"]),
+            x_e_symbols=self.x_sym, u_symbols=tuple(self.symbols[v.name] for v in variables["u"]),
+            parameter_symbols=self.par_sym, controller=controller, notes=tuple(self.notes))
+
+    def variables(self, table: Any) -> dict[str, Any]:
+        if not isinstance(table, dict):
+            raise self.error("variables", "variables", "must be a table")
+        extra = set(table) - set(VARIABLE_KINDS)
+        if extra:
+            raise self.error("variables", sorted(extra)[0], f"unknown key; the keys are {list(VARIABLE_KINDS)}")
+        out: dict[str, Any] = {"names": []}
+        for kind in VARIABLE_KINDS:
+            if kind not in table:
+                raise self.error("variables", kind, "missing")
+            entries = table[kind]
+            if not isinstance(entries, list) or not entries:
+                raise self.error("variables", kind, "must be a non-empty list of [name, unit, description]")
+            specs = []
+            for i, e in enumerate(entries):
+                if not (isinstance(e, list) and len(e) == 3 and all(isinstance(s, str) for s in e)):
+                    raise self.error("variables", f"{kind}[{i}]", f"{e!r} is not [name, unit, description] (strings)")
+                self.check_name("variables", f"{kind}[{i}]", e[0], out["names"])
+                out["names"].append(e[0])
+                specs.append(VariableSpec(*e))
+            out[kind] = tuple(specs)
+        if len(out["p"]) != len(out["q"]):
+            raise self.error("variables", "p", f"{len(out['p'])} momenta for {len(out['q'])} positions q (n_m each)")
+        if len(out["u"]) != len(out["x_e"]):
+            raise self.error("variables", "u", f"{len(out['u'])} inputs for {len(out['x_e'])} electrical states (n_e each)")
+        return out
+
+    def check_name(self, table: str, entry: str, name: str, taken) -> None:
+        if not NAME.match(name) or keyword.iskeyword(name):
+            raise self.error(table, entry, f"name {name!r} is not an identifier [A-Za-z][A-Za-z0-9_]*")
+        if name in FUNCTIONS:
+            raise self.error(table, entry, f"name {name!r} is a function of the expressions; choose another")
+        if name in taken:
+            raise self.error(table, entry, f"name {name!r} is used twice (variables and parameters share one namespace)")
+
+    def parameters(self, table: Any, where: str, taken: set[str]) -> dict[str, Parameter]:
+        if not isinstance(table, dict):
+            raise self.error(where, where, "must be a table")
+        out: dict[str, Parameter] = {}
+        for name, e in table.items():
+            self.check_name(where, name, name, taken | set(out))
+            if not (isinstance(e, list) and len(e) in (3, 4)):
+                raise self.error(where, name, f"{e!r} is not [default, unit, description] or [default, unit, description, "
+                                              "condition]")
+            default, unit, text = e[:3]
+            condition = e[3] if len(e) == 4 else "any"
+            if isinstance(default, bool) or not isinstance(default, (int, float)):
+                raise self.error(where, name, f"default {default!r} is not a number")
+            if not isinstance(unit, str) or not unit or not isinstance(text, str):
+                raise self.error(where, name, "unit and description must be strings (unit \"1\" if dimensionless)")
+            if condition not in CONDITIONS:
+                raise self.error(where, name, f"condition {condition!r} is not one of {list(CONDITIONS)}")
+            p = Parameter(name, float(default), unit, text, condition)
+            try:
+                p.check(p.default)
+            except ValueError as err:
+                raise self.error(where, name, f"default: {err}") from None
+            out[name] = p
+        return out
+
+    # ---- expressions ----------------------------------------------------------------------------------
+    def expr(self, table: str, entry: str, value: Any, allowed: set[sympy.Symbol]) -> sympy.Expr:
+        """One expression: a number or a string of names, numbers, + - * / ** ^ and parentheses."""
+        if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+            raise self.error(table, entry, f"{value!r} is not an expression (a string or a number)")
+        if not isinstance(value, str):
+            if not math.isfinite(value):
+                raise self.error(table, entry, f"{value!r} is not finite")
+            return sympy.Float(value) if isinstance(value, float) else sympy.Integer(value)
+        try:
+            tokens = list(tokenize.generate_tokens(io.StringIO(value).readline))
+        except (tokenize.TokenError, IndentationError, SyntaxError) as e:
+            raise self.error(table, entry, f"{value!r} is not an expression ({e})") from None
+        pieces = []
+        for t in tokens:
+            if t.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.INDENT, tokenize.DEDENT):
+                continue
+            if t.type == tokenize.NAME:
+                if t.string in FUNCTIONS:
+                    pieces.append(t.string)
+                    continue
+                if t.string not in self.symbols:
+                    raise self.error(table, entry, f"unknown symbol {t.string!r} in {value!r} (known: variables "
+                                                   f"{[s for s in self.symbols if s not in self.parameters_]}, parameters "
+                                                   f"{list(self.parameters_)}, functions {list(FUNCTIONS)})")
+                if self.symbols[t.string] not in allowed:
+                    raise self.error(table, entry, f"{t.string!r} may not appear in {value!r}: "
+                                                   f"{self.allowed_text(allowed)}")
+                pieces.append(t.string)
+            elif t.type == tokenize.NUMBER:
+                if not NUMBER.match(t.string):
+                    raise self.error(table, entry, f"number {t.string!r} in {value!r} is not a decimal number")
+                pieces.append(t.string)
+            elif t.type == tokenize.OP and t.string in OPERATORS:
+                pieces.append("**" if t.string == "^" else t.string)
+            else:
+                raise self.error(table, entry, f"{t.string!r} in {value!r} is not allowed (names, numbers, "
+                                               "+ - * / ** ^ and parentheses only)")
+        if not pieces:
+            raise self.error(table, entry, "empty expression")
+        local = {**{k: v for k, v in FUNCTIONS.items()}, **self.symbols}
+        glob = {"__builtins__": {}, "Integer": sympy.Integer, "Float": sympy.Float, "Rational": sympy.Rational,
+                "Symbol": sympy.Symbol}
+        try:
+            result = parse_expr(" ".join(pieces), local_dict=local, global_dict=glob)
+        except Exception as e:  # sympy reports malformed input with several exception types
+            raise self.error(table, entry, f"{value!r} is not an expression ({type(e).__name__})") from None
+        if not isinstance(result, sympy.Expr) or result.has(sympy.zoo, sympy.nan, sympy.oo, sympy.I):
+            raise self.error(table, entry, f"{value!r} is not a finite real expression")
+        return result
+
+    def allowed_text(self, allowed: set[sympy.Symbol]) -> str:
+        kinds = []
+        if set(self.q_sym) & allowed:
+            kinds.append("positions q")
+        if set(self.x_sym) & allowed:
+            kinds.append("electrical states x_e")
+        kinds.append("parameters")
+        return "it may depend on " + " and ".join(kinds) + " only"
+
+    def matrix(self, table: str, entry: str, value: Any, shape: tuple[int, int], allowed: set[sympy.Symbol]) -> sympy.Matrix:
+        """A matrix as a list of rows (a single expression when it is 1 x 1)."""
+        rows_n, cols_n = shape
+        if not isinstance(value, list):
+            if shape != (1, 1):
+                raise self.error(table, entry, f"must be a {rows_n} x {cols_n} matrix (a list of {rows_n} rows); "
+                                               "a single expression is allowed only for 1 x 1")
+            return sympy.Matrix([[self.expr(table, entry, value, allowed)]])
+        if len(value) != rows_n or not all(isinstance(r, list) and len(r) == cols_n for r in value):
+            got = (f"{len(value)} rows of lengths {[len(r) if isinstance(r, list) else '-' for r in value]}")
+            raise self.error(table, entry, f"must be {rows_n} x {cols_n} (n_m = {self.n_m}, n_e = {self.n_e}); got {got}")
+        return sympy.Matrix([[self.expr(table, f"{entry}[{i}][{j}]", x, allowed) for j, x in enumerate(r)]
+                             for i, r in enumerate(value)])
+
+    def numeric(self, A: sympy.Matrix) -> np.ndarray:
+        return np.array(A.subs(self.defaults).evalf(), dtype=float)
+
+    # ---- the model ------------------------------------------------------------------------------------
+    def model(self, table: Any) -> dict[str, Any]:
+        if not isinstance(table, dict):
+            raise self.error("model", "model", "must be a table")
+        extra = set(table) - set(MODEL_REQUIRED) - set(MODEL_OPTIONAL)
+        if extra:
+            raise self.error("model", sorted(extra)[0], f"unknown key; the keys are {list(MODEL_REQUIRED + MODEL_OPTIONAL)}")
+        for key in MODEL_REQUIRED:
+            if key not in table:
+                raise self.error("model", key, "missing")
+        m, e = self.n_m, self.n_e
+        par, q = set(self.par_sym), set(self.q_sym)
+        M = self.matrix("model", "M", table["M"], (m, m), par | q)
+        V = self.expr("model", "V", table["V"], par | q)
+        Psi = self.matrix("model", "Psi", table["Psi"], (e, e), par | q)
+        R_m = self.matrix("model", "R_m", table["R_m"], (m, m), par)
+        J_e = self.matrix("model", "J_e", table["J_e"], (e, e), par)
+        R_e = self.matrix("model", "R_e", table["R_e"], (e, e), par)
+        G_e = self.matrix("model", "G_e", table["G_e"], (e, e), par)
+        domain, margins, texts = self.domain(table.get("domain", []))
+        self.margins = margins
+        self.constant_checks(R_m, J_e, R_e, G_e)
+        self.symmetric("M", M)
+        self.positive_definite("M", M, "M(q) > 0 (mass-inertia matrix)")
+        self.symmetric("Psi", Psi)
+        self.positive_definite("Psi", Psi, "Psi(q) > 0 on the domain (inverse capacitance / inductance, eq. elec energy)")
+        Gamma, phi, source = self.gamma_phi(table, Psi)
+        sign = table.get("x_e_sign", 1)
+        if isinstance(sign, bool) or sign not in (1, -1):
+            raise self.error("model", "x_e_sign", f"{sign!r} must be 1 or -1 (the root x_e* of Definition 1 the reference uses)")
+        return dict(M=M, V=V, Psi=Psi, R_m=R_m, J_e=J_e, R_e=R_e, G_e=G_e, domain=domain, domain_margins=margins,
+                    domain_text=texts, Gamma=Gamma, phi=phi, gamma_source=source, x_e_sign=float(sign))
+
+    def domain(self, entries: Any) -> tuple[tuple, tuple, tuple]:
+        if not isinstance(entries, list) or not all(isinstance(s, str) for s in entries):
+            raise self.error("model", "domain", "must be a list of strict inequalities such as \"q < c\"")
+        rels, margins = [], []
+        allowed = set(self.par_sym) | set(self.q_sym)
+        for i, s in enumerate(entries):
+            entry = f"domain[{i}]"
+            if any(op in s for op in ("<=", ">=", "==", "!=", "=")):
+                raise self.error("model", entry, f"{s!r} must be a strict inequality (< or >)")
+            parts = re.split(r"([<>])", s)
+            if len(parts) != 3:
+                raise self.error("model", entry, f"{s!r} must be one strict inequality a < b or a > b")
+            lhs = self.expr("model", entry, parts[0], allowed)
+            rhs = self.expr("model", entry, parts[2], allowed)
+            g = sympy.expand(rhs - lhs if parts[1] == "<" else lhs - rhs)
+            if not g.free_symbols & set(self.q_sym):
+                raise self.error("model", entry, f"{s!r} does not depend on the positions q")
+            rels.append(sympy.StrictGreaterThan(g, 0))
+            margins.append(g)
+        return tuple(rels), tuple(margins), tuple(entries)
+
+    def constant_checks(self, R_m, J_e, R_e, G_e) -> None:
+        scale = lambda A: max(1.0, float(np.max(np.abs(A))))  # noqa: E731
+        if not self.is_zero_matrix(R_m - R_m.T):
+            raise self.error("model", "R_m", f"{R_m.tolist()} is not symmetric (mechanical damping)")
+        lam = np.linalg.eigvalsh(self.numeric(R_m))
+        if np.min(lam) < -1e-12 * scale(lam):
+            raise self.error("model", "R_m", f"is not positive semi-definite at the default parameters "
+                                             f"(smallest eigenvalue {np.min(lam):.6g}; mechanical damping R_m >= 0)")
+        if not self.is_zero_matrix(J_e + J_e.T):
+            raise self.error("model", "J_e", f"{J_e.tolist()} is not skew-symmetric (J_e = -J_e^T)")
+        if not self.is_zero_matrix(R_e - R_e.T):
+            raise self.error("model", "R_e", f"{R_e.tolist()} is not symmetric (electrical damping)")
+        lam = np.linalg.eigvalsh(self.numeric(R_e))
+        if np.min(lam) < -1e-12 * scale(lam):
+            raise self.error("model", "R_e", f"is not positive semi-definite at the default parameters "
+                                             f"(smallest eigenvalue {np.min(lam):.6g}; electrical damping R_e >= 0)")
+        G = self.numeric(G_e)
+        sv = np.linalg.svd(G, compute_uv=False)
+        if not sv[-1] > 1e-12 * sv[0]:
+            raise self.error("model", "G_e", f"{G.tolist()} is singular at the default parameters "
+                                             "(the input matrix G_e must be invertible)")
+
+    @staticmethod
+    def is_zero_matrix(A: sympy.Matrix) -> bool:
+        return all(sympy.simplify(a) == 0 for a in A)
+
+    def symmetric(self, entry: str, A: sympy.Matrix) -> None:
+        if not self.is_zero_matrix(A - A.T):
+            raise self.error("model", entry, f"{A.tolist()} is not symmetric")
+
+    def positive_definite(self, entry: str, A: sympy.Matrix, what: str) -> None:
+        """A > 0 on the domain: Sylvester's criterion decided by sympy under the domain's inequalities,
+        otherwise at sample points of the domain at the default parameters (noted in `notes`)."""
+        minors = [A[:k, :k].det() for k in range(1, A.shape[0] + 1)]
+        decided = [self.sign_on_domain(d) for d in minors]
+        if all(d is True for d in decided):
+            self.notes.append(f"{entry}: {what}: decided symbolically")
+            return
+        for k, d in enumerate(decided):
+            if d is False:
+                raise self.error("model", entry, f"violates {what}: the leading minor {k + 1} "
+                                                 f"{sympy.simplify(minors[k])} is not positive on the domain")
+        points = self.sample_points()
+        if not points:
+            raise self.error("model", entry, f"cannot check {what}: no sample point inside the domain "
+                                             f"{list(self.margins)} at the default parameters")
+        f = sympy.lambdify(self.q_sym, A.subs(self.defaults), "numpy")
+        for qv in points:
+            a = np.array(f(*qv), dtype=float)
+            lam = np.linalg.eigvalsh(0.5 * (a + a.T))
+            if not np.min(lam) > 0:
+                where = ", ".join(f"{s} = {v:.6g}" for s, v in zip(self.q_sym, qv))
+                raise self.error("model", entry, f"violates {what} at {where} (default parameters; smallest "
+                                                 f"eigenvalue {np.min(lam):.6g})")
+        self.notes.append(f"{entry}: {what}: not decided by sympy; checked at {len(points)} sample points of the "
+                          "domain at the default parameters")
+
+    def sign_on_domain(self, expr: sympy.Expr) -> bool | None:
+        """True / False when sympy decides expr > 0 for every q in the domain and every admissible parameter."""
+        expr = sympy.simplify(expr)
+        if not expr.free_symbols & set(self.q_sym):
+            value = expr.is_positive
+            if value is None:
+                return None
+            return bool(value)
+        subs: dict = {}
+        used: set = set()
+        for j, g in enumerate(self.margins):
+            g = sympy.expand(g.subs(subs))
+            for qk in self.q_sym:
+                if qk in used or qk not in g.free_symbols:
+                    continue
+                poly = sympy.Poly(g, qk) if g.is_polynomial(qk) else None
+                if poly is None or poly.degree() != 1 or poly.LC().free_symbols & set(self.q_sym):
+                    continue
+                s = sympy.Symbol(f"_margin{j}", positive=True)
+                solution = sympy.solve(sympy.Eq(g, s), qk)
+                if len(solution) != 1:
+                    continue
+                subs = {k: v.subs(qk, solution[0]) for k, v in subs.items()}
+                subs[qk] = solution[0]
+                used.add(qk)
+                break
+        if set(self.q_sym) - used:
+            return None
+        e = sympy.factor(sympy.simplify(expr.subs(subs)))
+        value = e.is_positive
+        return None if value is None else bool(value)
+
+    def sample_points(self) -> list[tuple[float, ...]]:
+        """Up to SAMPLE_POINTS positions inside the domain (default parameters): q = 0 and Gaussian points
+        scaled by 1e-6 ... 1e2, fixed seed."""
+        rng = np.random.default_rng(25)
+        margins = [sympy.lambdify(self.q_sym, g.subs(self.defaults), "math") for g in self.margins]
+        candidates = [np.zeros(self.n_m)]
+        for scale in np.logspace(-6, 2, 17):
+            candidates += list(scale * rng.standard_normal((24, self.n_m)))
+        inside = []
+        for qv in candidates:
+            try:
+                if all(float(g(*qv)) > 0 for g in margins):
+                    inside.append(tuple(float(v) for v in qv))
+            except (ZeroDivisionError, ValueError, OverflowError):
+                continue
+            if len(inside) >= SAMPLE_POINTS:
+                break
+        return inside
+
+    def gamma_phi(self, table: Mapping, Psi: sympy.Matrix) -> tuple:
+        """Gamma and phi of Assumptions 2/4 (grad_q H_e = -Gamma grad phi(x_e), eq. assHereg): given, or derived
+        when Psi is affine in q and every dPsi/dq_k is diagonal, else None."""
+        par, x = set(self.par_sym), set(self.x_sym)
+        H_e = (sympy.Matrix(self.x_sym).T * Psi * sympy.Matrix(self.x_sym))[0, 0] / 2       # eq. (elec energy)
+        grad_q = sympy.Matrix([sympy.diff(H_e, qk) for qk in self.q_sym])
+        if ("Gamma" in table) != ("phi" in table):
+            missing = "phi" if "Gamma" in table else "Gamma"
+            raise self.error("model", missing, "Gamma and phi are given together or not at all")
+        if "Gamma" in table:
+            Gamma = self.matrix("model", "Gamma", table["Gamma"], (self.n_m, self.n_e), par)
+            phi = self.expr("model", "phi", table["phi"], par | x)
+            grad_phi = sympy.Matrix([sympy.diff(phi, xi) for xi in self.x_sym])
+            if not self.is_zero_matrix(grad_q + Gamma * grad_phi):
+                raise self.error("model", "Gamma", "grad_q H_e = -Gamma grad phi(x_e) (Assumption 2, eq. assHereg) does "
+                                                   f"not hold: grad_q H_e = {list(grad_q)}")
+            self.notes.append("Gamma, phi: given; grad_q H_e = -Gamma grad phi checked symbolically")
+            return Gamma, phi, "given"
+        dPsi = [Psi.diff(qk) for qk in self.q_sym]
+        affine = all(self.is_zero_matrix(D.diff(ql)) for D in dPsi for ql in self.q_sym)
+        diagonal = all(D[i, j] == 0 or sympy.simplify(D[i, j]) == 0
+                       for D in dPsi for i in range(self.n_e) for j in range(self.n_e) if i != j)
+        if not (affine and diagonal):
+            self.notes.append("Gamma, phi: not derived (Psi is not affine in q with diagonal dPsi/dq_k)")
+            return None, None, None
+        Gamma = sympy.Matrix(self.n_m, self.n_e, lambda k, i: sympy.simplify(-dPsi[k][i, i] / 2))   # Sec. 7.2
+        phi = sum((xi ** 3 / 3 for xi in self.x_sym), sympy.Integer(0))                           # Sec. 7.2
+        grad_phi = sympy.Matrix([xi ** 2 for xi in self.x_sym])
+        assert self.is_zero_matrix(grad_q + Gamma * grad_phi)          # eq. (assHereg), by construction
+        self.notes.append("Gamma, phi: derived (Psi affine in q, diagonal dPsi/dq_k): Gamma[k][i] = -dPsi_ii/dq_k / 2, "
+                          "phi = sum x_e_i^3 / 3")
+        return Gamma, phi, "derived"
+
+    # ---- [controller] --------------------------------------------------------------------------------
+    def controller_table(self, table: dict, taken: set[str]) -> None:
+        """Syntax of the [controller] table (gain defaults; values are checked when a Device is built)."""
+        extra = set(table) - set(CONTROLLER_GAINS) - {"parameters"}
+        if extra:
+            raise self.error("controller", sorted(extra)[0], f"unknown key; the keys are {list(CONTROLLER_GAINS)} "
+                                                            "and the table parameters")
+        gain_params = self.parameters(table.get("parameters", {}), "controller.parameters", taken)
+        self.gain_parameters = gain_params
+        gain_symbols = {n: sympy.Symbol(n, real=True) for n in gain_params}
+        saved = self.symbols
+        self.symbols = {**saved, **gain_symbols}
+        try:
+            shapes = {"q_d": (self.n_m, 1), "R_e_bar": (self.n_e, self.n_e), "D_d": (self.n_e, self.n_m),
+                      "k_c": (self.n_e, self.n_e)}
+            for gain in CONTROLLER_GAINS:
+                if gain in table:
+                    value = table[gain]
+                    if gain == "q_d" and isinstance(value, list) and all(not isinstance(v, list) for v in value):
+                        value = [[v] for v in value]
+                    self.matrix("controller", gain, value, shapes[gain], set(gain_symbols.values()))
+        finally:
+            self.symbols = saved

@@ -265,7 +265,7 @@ class Model:
         b = -self.at_values(self.grad_V).subs(subs)                                   # grad_q H = 0 with p = 0
         if A.det() == 0:
             return None, None, "A(q_d) is singular: x_e_d not unique"
-        w = [sympy.nsimplify(sympy.simplify(v)) if v.is_Rational else sympy.simplify(v) for v in A.LUsolve(b)]
+        w = [sympy.simplify(v) for v in A.LUsolve(b)]
         if any(v.is_negative for v in w):
             return None, False, f"x_e_d^2 = w = {_numbers(w)} has a negative entry: no real x_e_d"
         if not all(v.is_nonnegative for v in w):
@@ -387,7 +387,7 @@ def check_reference(model: Model, reference: Reference | JetFunction, horizon: f
     else:
         v.tests.append(Test("real x_e*(t) with grad_q H_e(q*, x_e*) = -(p*' + R_m q*' + grad V + grad_q T)", HOLDS,
                             f"numerically at {what}", how))
-    return v, Trajectory(ts, etas, np.array(ok_times), what)
+    return v, Trajectory(ts, etas, np.array(ok_times), f"reference ({what})")
 
 
 # ---- the assumptions -------------------------------------------------------------------------------
@@ -602,7 +602,7 @@ def assumption_4(model: Model, structure: list[Test], trajectory: Trajectory | N
         lams = [hess_phi_at(model, list(eta[2 * model.n_m:]), False)[1] for eta in trajectory.eta]
         k = int(np.argmin(lams))
         v.tests.append(Test(cond, HOLDS if lams[k] > 0 else FAILS,
-                            f"numerically at the {len(lams)} feasible time(s) of the reference",
+                            f"numerically at the {len(lams)} feasible time(s) of the {trajectory.description}",
                             f"min eig {lams[k]:.6g} at t = {trajectory.feasible_times[k]:.6g} s"))
         return v
     ok, how = _hess_phi_everywhere(model)

@@ -294,3 +294,15 @@ def test_assumption_3_over_a_given_box_can_fail():
     assert a3.verdict == FAILS and a3.tests[1].method.startswith("numerically")
     alpha = float(a3.tests[1].detail.split("=")[1].split(",")[0])
     assert alpha == pytest.approx(-0.46, rel=1e-3)
+
+
+def test_R_m_is_decided_symbolically_when_the_conditions_allow_it():
+    # R_m = diag(0.1, r2): with r2 "> 0" both minors are positive for every admissible r2 (symbolic); with
+    # ">= 0" sympy cannot decide for r2 = 0 and the check says it used the parameter values
+    strict = check(parse(TWO_AXIS.replace('"damping of q2", ">= 0"', '"damping of q2", "> 0"')), q_d=[0.1, 0.2])
+    loose = check(parse(TWO_AXIS), q_d=[0.1, 0.2])
+    assert strict.assumption(1).tests[0].method == "symbolic for every admissible parameter value"
+    assert loose.assumption(1).tests[0].method.startswith("not decided symbolically")
+    assert strict.assumption(1).verdict == loose.assumption(1).verdict == HOLDS
+    # hess_q H = K = [[3, -1], [-1, 2]] constant: for every eta_d
+    assert "for every eta_d" in loose.assumption(1).tests[1].method

@@ -306,3 +306,19 @@ def test_R_m_is_decided_symbolically_when_the_conditions_allow_it():
     assert strict.assumption(1).verdict == loose.assumption(1).verdict == HOLDS
     # hess_q H = K = [[3, -1], [-1, 2]] constant: for every eta_d
     assert "for every eta_d" in loose.assumption(1).tests[1].method
+
+
+def test_variable_mass_reference_follows_lagrange():
+    # M(q) = m (1 + (q/c)^2): Lagrange's equation d/dt(M q') - M' q'^2 / 2 = M q'' + M' q'^2 / 2 gives
+    # x_e*^2 / (2k) = M(q*) q*'' + m q* q*'^2 / c^2 + R_m q*' + b
+    text = maglev_variant(0.3, spring=False).replace('M   = "m"', 'M   = "m*(1 + (q/c)^2)"')
+    model = plant_check.Model(parse(text))
+    ref = Sinusoid(offset=0.0025, amplitude=1e-3, omega=30.0)
+    v, traj = plant_check.check_reference(model, ref, None, 7)
+    assert v.verdict == HOLDS
+    k, c, b, m, R_m = 0.64042, 0.005, 0.8280, 0.0844, 0.3
+    for t, eta in zip(traj.feasible_times, traj.eta):
+        q, qd, qdd, _ = ref.values(t)
+        M = m * (1 + (q / c) ** 2)
+        x2 = 2 * k * (M * qdd + m * q * qd ** 2 / c ** 2 + R_m * qd + b)
+        np.testing.assert_allclose(eta, [q, M * qd, math.sqrt(x2)], rtol=1e-12)

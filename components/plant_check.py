@@ -234,11 +234,15 @@ class Model:
             if self.n_m == self.n_e and np.linalg.cond(A) < 1e12:
                 w = np.linalg.solve(A, b)
                 how = "x_e_i^2 = w_i from the linear system A(q) w = b (A_ki = dPsi_ii/dq_k / 2)"
-            else:
-                w, res = optimize.nnls(A, b)
-                if res > 1e-9 * max(float(np.linalg.norm(b)), 1e-300):
-                    return None, f"no w = x_e^2 >= 0 solves A(q) w = b (nnls residual {res:.3g})"
-                how = "x_e_i^2 = w_i >= 0 from nnls on A(q) w = b"
+            else:                                    # n_e != n_m: x_e not unique (or overdetermined)
+                tol = 1e-9 * max(float(np.linalg.norm(b)), 1e-300)
+                w = np.linalg.lstsq(A, b, rcond=None)[0]
+                how = "x_e_i^2 = w_i, the minimum-norm w > 0 solving A(q) w = b (not unique: n_e != n_m)"
+                if not (np.all(w > 0) and np.linalg.norm(A @ w - b) <= tol):
+                    w, res = optimize.nnls(A, b)
+                    if res > tol:
+                        return None, f"no w = x_e^2 >= 0 solves A(q) w = b (nnls residual {res:.3g})"
+                    how = "x_e_i^2 = w_i >= 0 from nnls on A(q) w = b (not unique: n_e != n_m)"
             if np.any(w < 0):
                 return None, f"x_e^2 = w = {_numbers(w)} has a negative entry: no real x_e"
             return self.sign * np.sqrt(w), how

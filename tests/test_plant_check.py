@@ -322,3 +322,25 @@ def test_variable_mass_reference_follows_lagrange():
         M = m * (1 + (q / c) ** 2)
         x2 = 2 * k * (M * qdd + m * q * qd ** 2 / c ** 2 + R_m * qd + b)
         np.testing.assert_allclose(eta, [q, M * qd, math.sqrt(x2)], rtol=1e-12)
+
+
+def test_two_coils_on_one_axis_share_the_force():
+    # n_m = 1, n_e = 2, Psi = (c - q)/k I: (x1^2 + x2^2)/(2k) = b; the minimum-norm split x1 = x2 = sqrt(k b)
+    # keeps hess phi = diag(2 x1, 2 x2) > 0 (a split with x2 = 0 would not)
+    text = BAR.replace('q   = [["z", "m", "height of the centre"], ["theta", "rad", "tilt"]]', 'q = [["z", "m", ""]]')
+    text = text.replace('p   = [["p_z", "kg.m/s", "momentum"], ["p_theta", "kg.m2/s", "angular momentum"]]',
+                        'p = [["p", "kg.m/s", ""]]')
+    text = text.split("[model]")[0] + """[model]
+M = "m"
+V = "b*z"
+Psi = [["(c - z)/k", "0"], ["0", "(c - z)/k"]]
+R_m = "0"
+J_e = [["0", "0"], ["0", "0"]]
+R_e = [["R", "0"], ["0", "R"]]
+G_e = [["1", "0"], ["0", "1"]]
+domain = ["z < c"]
+"""
+    r = check(parse(text), q_d=0.002)
+    np.testing.assert_allclose(r.x_e_d, [math.sqrt(0.64 * 0.8)] * 2, rtol=1e-12)
+    assert "not unique" in r.setpoint.tests[1].method
+    assert r.assumption(2).verdict == HOLDS and r.designs == ["Proposition2", "Theorem3"]

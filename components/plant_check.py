@@ -569,9 +569,21 @@ def sample_box(model: Model, etas: list[np.ndarray], box: float | Mapping[str, t
     return points, what
 
 
-def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str) -> Verdict:
+def box_contains(model: Model, box: Mapping[str, tuple[float, float]], etas: list[np.ndarray]) -> Test:
+    """S (a given box) must contain the target eta*(t) (eq. cond1T2: S is an open set containing eta*)."""
+    names = [v.name for v in (*model.desc.q, *model.desc.p, *model.desc.x_e)]
+    lo = np.array([float(box[n][0]) for n in names])
+    hi = np.array([float(box[n][1]) for n in names])
+    out = [k for k, eta in enumerate(etas) if not np.all((lo < eta) & (eta < hi))]
+    detail = f"{len(out)} of {len(etas)} sampled eta* outside the box" if out else ""
+    return Test("S (the given box) contains eta*", NOT_DECIDED if out else HOLDS, "numerically at the sampled eta*",
+                detail)
+
+
+def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
+                 contains: Test | None = None) -> Verdict:
     """R_m > 0 and alpha I < [[hess_q H, d_q grad_p H], [., M^-1]] < beta I on S (eq. cond1T2)."""
-    v = Verdict("Assumption 3 (eq. cond1T2)", [R_m_test(model)])
+    v = Verdict("Assumption 3 (eq. cond1T2)", [R_m_test(model)] + ([contains] if contains else []))
     cond = "alpha I < [[hess_q H, d_q grad_p H], [., M^-1]] < beta I on S, 0 < alpha < beta"
     m = model.n_m
     H = model.desc.M.inv()
@@ -692,7 +704,8 @@ def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Refe
     structure = structure_tests(model)
     assumptions = [assumption_1(model, q_list, x_e_d, x_num),
                    assumption_2(model, structure, q_list, x_e_d, x_num),
-                   assumption_3(model, points, why_not),
+                   assumption_3(model, points, why_not,
+                                box_contains(model, box, etas) if isinstance(box, Mapping) and etas else None),
                    assumption_4(model, structure, trajectory if reference is not None else _constant(etas),
                                 why_not)]
     return Report(desc.name, desc.source, dict(model.values), q_list,

@@ -32,7 +32,7 @@ from scipy import optimize
 from .certificates import FAILS, HOLDS, _max_eig, _min_eig, reference_period
 from .device import DESIGNS
 from .ph_plant import Jet
-from .references import Constant, Reference, SmoothStep
+from .references import Constant, Reference, Sinusoid, SmoothStep
 
 NOT_DECIDED = "not decided"
 ASSUMPTION_OF = {"Proposition1": "Assumption 1", "Proposition2": "Assumption 2",
@@ -101,6 +101,10 @@ class Report:
     def designs(self) -> list[str]:
         """The designs that apply ("Proposition1", ...), for components.description.device(desc, designs)."""
         return [d.name for d in self.design_verdicts if d.applies]
+
+    def not_applicable(self) -> list[str]:
+        """"<design>: <why>" for each design that does not apply (what `emcosim plant build` does not build)."""
+        return [f"{d.name}: {d.reason}" for d in self.design_verdicts if not d.applies]
 
     def assumption(self, number: int) -> Verdict:
         return self.assumptions[number - 1]
@@ -334,19 +338,29 @@ class Trajectory:
     description: str
 
 
-def _jet_function(reference: Reference | JetFunction, n_m: int) -> JetFunction:
+def _jet_function(reference: Any, n_m: int) -> JetFunction:
+    """t -> Jet of a components.references kind (n_m = 1), an object with .jet(t) (a stacked reference), or a
+    function t -> Jet."""
     if isinstance(reference, Reference):
         if n_m != 1:
             raise ValueError(f"a {reference.name} is a scalar q*(t); this plant has n_m = {n_m}: give a jet function")
         return reference.jet
+    if hasattr(reference, "jet"):
+        return reference.jet
+    if not callable(reference):
+        raise ValueError(f"reference {reference!r} is neither a reference generator nor a function t -> Jet")
     return reference
 
 
-def default_horizon(reference: Reference | JetFunction) -> float:
-    """One period of a sinusoid, the end of a smooth step, 0 for a constant; else a horizon must be given."""
-    period = reference_period(reference) if isinstance(reference, Reference) else None
-    if period is not None:
-        return period
+def default_horizon(reference: Any) -> float:
+    """One period of a sinusoid, the end of a smooth step, 0 for a constant (or a sinusoid without motion);
+    for a stacked reference (.generators, one per position) the longest of its generators'. Any other
+    reference needs an explicit horizon."""
+    generators = getattr(reference, "generators", None)
+    if generators is not None:
+        return max((default_horizon(g) for g in generators), default=0.0)
+    if isinstance(reference, Sinusoid):
+        return reference_period(reference) or 0.0
     if isinstance(reference, SmoothStep):
         return reference.params["t_start"] + reference.params["duration"]
     if isinstance(reference, Constant):
@@ -354,7 +368,7 @@ def default_horizon(reference: Reference | JetFunction) -> float:
     raise ValueError("give the horizon over which the reference is checked")
 
 
-def check_reference(model: Model, reference: Reference | JetFunction, horizon: float | None,
+def check_reference(model: Model, reference: Any, horizon: float | None,
                     times: int) -> tuple[Verdict, Trajectory]:
     """Definition 1 at sampled times: x_e*(t) exists (real) and q*(t) is inside the domain."""
     horizon = default_horizon(reference) if horizon is None else float(horizon)
@@ -668,12 +682,12 @@ def _first(v: Verdict) -> str:
 
 # ---- the whole check -------------------------------------------------------------------------------
 
-def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Reference | JetFunction | None = None,
+def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Any = None,
           box: float | Mapping[str, tuple[float, float]] | None = None, samples: int = SAMPLES, times: int = TIMES,
           horizon: float | None = None, parameters: Mapping[str, float] | None = None) -> Report:
     """Assumptions 1-4, the set-point q_d (default: the description's [controller] q_d) and the reference
-    (a components.references kind for n_m = 1, or a function t -> Jet) over `horizon` (default: one period of
-    a sinusoid, the end of a smooth step) at `times` evenly spaced times; the set S of Assumption 3 is `box`
+    (a components.references kind for n_m = 1, an object with .jet(t) or a function t -> Jet) over `horizon`
+    (default: default_horizon) at `times` evenly spaced times; the set S of Assumption 3 is `box`
     (relative half-width around eta*(t), default RADIUS, or bounds per state name) sampled with `samples`
     random points per time. `parameters` override the description's defaults."""
     model = Model(desc, parameters)

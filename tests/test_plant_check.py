@@ -346,3 +346,27 @@ domain = ["z < c"]
     np.testing.assert_allclose(r.x_e_d, [math.sqrt(0.64 * 0.8)] * 2, rtol=1e-12)
     assert "not unique" in r.setpoint.tests[1].method
     assert r.assumption(2).verdict == HOLDS and r.designs == ["Proposition2", "Theorem3"]
+
+
+class Stacked:
+    """One generator per position, as emcosim.devices.scenario.StackedReference: .generators and .jet(t)."""
+
+    def __init__(self, generators):
+        self.generators = generators
+
+    def jet(self, t):
+        from components.ph_plant import Jet
+        return Jet(*np.array([g.values(t) for g in self.generators]).T)
+
+
+def test_bar_tracks_a_stacked_reference_over_the_longest_period():
+    ref = Stacked([Sinusoid(offset=0.002, amplitude=5e-4, omega=10.0), Sinusoid(offset=0.0, amplitude=0.005, omega=5.0)])
+    r = check(parse(BAR), q_d=[0.002, 0.0], reference=ref)
+    assert f"[0, {2 * math.pi / 5:.6g}] s" in r.reference.name
+    assert r.reference.verdict == HOLDS and r.assumption(4).verdict == HOLDS
+    assert r.designs == ["Proposition2", "Theorem3"]
+    assert [line.split(":")[0] for line in r.not_applicable()] == ["Proposition1", "Theorem2"]
+    # a tilt the magnets cannot hold: theta* = 0.06 rad puts z + l theta = 0.008 > c
+    tilted = check(parse(BAR), reference=Stacked([Sinusoid(offset=0.002, amplitude=0.0, omega=0.0),
+                                                   Sinusoid(offset=0.06, amplitude=0.0, omega=0.0)]))
+    assert tilted.reference.verdict == FAILS and "Theorem3" not in tilted.designs

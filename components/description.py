@@ -21,13 +21,13 @@ import tokenize
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import sympy
 from sympy.parsing.sympy_parser import parse_expr
 
-from .device import VariableSpec
+from .device import Device, VariableSpec
 from .parameters import Parameter
 
 FUNCTIONS: dict[str, Any] = {
@@ -92,6 +92,9 @@ class Description:
     parameter_symbols: tuple[sympy.Symbol, ...]
     controller: dict = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    gains: dict[str, sympy.Matrix] = field(default_factory=dict)
+    """The [controller] table's gains as matrices (q_d a column), in the [controller.parameters] symbols."""
+    gain_parameters: dict[str, Parameter] = field(default_factory=dict)
 
     @property
     def n_m(self) -> int:
@@ -176,7 +179,8 @@ class _Parser:
             q=variables["q"], p=variables["p"], x_e=variables["x_e"], u=variables["u"], parameters=parameters,
             **model, q_symbols=self.q_sym, p_symbols=tuple(self.symbols[v.name] for v in variables["p"]),
             x_e_symbols=self.x_sym, u_symbols=tuple(self.symbols[v.name] for v in variables["u"]),
-            parameter_symbols=self.par_sym, controller=controller, notes=tuple(self.notes))
+            parameter_symbols=self.par_sym, controller=controller, notes=tuple(self.notes),
+            gains=self.gain_matrices, gain_parameters=self.gain_parameters)
 
     def variables(self, table: Any) -> dict[str, Any]:
         if not isinstance(table, dict):
@@ -522,6 +526,7 @@ class _Parser:
         gain_symbols = {n: sympy.Symbol(n, real=True) for n in gain_params}
         saved = self.symbols
         self.symbols = {**saved, **gain_symbols}
+        self.gain_matrices: dict[str, sympy.Matrix] = {}
         try:
             shapes = {"q_d": (self.n_m, 1), "R_e_bar": (self.n_e, self.n_e), "D_d": (self.n_e, self.n_m),
                       "k_c": (self.n_e, self.n_e)}
@@ -530,6 +535,44 @@ class _Parser:
                     value = table[gain]
                     if gain == "q_d" and isinstance(value, list) and all(not isinstance(v, list) for v in value):
                         value = [[v] for v in value]
-                    self.matrix("controller", gain, value, shapes[gain], set(gain_symbols.values()))
+                    self.gain_matrices[gain] = self.matrix("controller", gain, value, shapes[gain],
+                                                           set(gain_symbols.values()))
         finally:
             self.symbols = saved
+
+
+def gain_table(desc: Description) -> tuple[dict[str, list[list[float]]], dict[str, tuple[sympy.Matrix, tuple[str, ...]]],
+                                            dict[str, Parameter]]:
+    """The controller gains of `desc`: (defaults, forms, gain parameters).
+
+    defaults[gain]  a matrix (list of rows; q_d a column) of the gains given as numbers, or the defaults:
+                    q_d = 0, D_d = 0, k_c = I, R_e_bar = 2 R_e (at the default parameters) when R_e > 0,
+                    else I;
+    forms[gain]     (matrix in the [controller.parameters] symbols, their names) for a plant-specific form
+                    (MEMS: R_e_bar = 1/rbar_e).
+    """
+    m, e = desc.n_m, desc.n_e
+    R_e = np.array(desc.R_e.subs(desc.defaults).evalf(), dtype=float)
+    positive = bool(np.min(np.linalg.eigvalsh(R_e)) > 0)
+    fallback = {"q_d": np.zeros((m, 1)), "D_d": np.zeros((e, m)), "k_c": np.eye(e),
+                "R_e_bar": 2.0 * R_e if positive else np.eye(e)}
+    defaults: dict[str, list[list[float]]] = {}
+    forms: dict[str, tuple[sympy.Matrix, tuple[str, ...]]] = {}
+    for gain in CONTROLLER_GAINS:
+        A = desc.gains.get(gain)
+        if A is not None and A.free_symbols:
+            names = tuple(n for n in desc.gain_parameters if sympy.Symbol(n, real=True) in A.free_symbols)
+            forms[gain] = (A, names)
+            continue
+        value = np.array(A.evalf(), dtype=float) if A is not None else fallback[gain]
+        defaults[gain] = [[float(x) for x in row] for row in value]
+    used = {n for _, names in forms.values() for n in names}
+    return defaults, forms, {n: p for n, p in desc.gain_parameters.items() if n in used}
+
+
+def device(desc: Description, designs: Sequence[str] | None = None) -> Device:
+    """The components.device.Device of a description: its generated plant class and the controllers of
+    `designs` (the designs that apply, e.g. from components.plant_check; default: all four) with their
+    gains under the paper's names (q_d, R_e_bar, D_d, k_c; entries q_d_1, R_e_bar_1_2, ... where n > 1)."""
+    from . import codegen
+    return codegen.load_module(desc).device(designs)

@@ -1,0 +1,280 @@
+"""Plants from a description: the run-time part (no sympy) of the classes components.codegen generates.
+
+A generated model module (components/plants/<name>_model.py, or `codegen.module_source(desc)`) defines
+a subclass of `DescribedOneDOF` (n_m = n_e = 1, constant M: today's scalar fast path of OneDOFPlant) or
+of `DescribedPlant` (any n_m, n_e: numpy arrays) whose model functions are the description's formulas,
+differentiated by sympy once. Parameters are resolved and checked by name here, the domain is checked
+by inequality, and feasible references (Definition 1) are found for any n_m = n_e.
+
+The math-function dispatchers (sqrt, exp, ...) send floats to math and complex numbers to cmath, so the
+generated functions take complex arguments (complex-step derivatives) at the cost of one isinstance.
+"""
+from __future__ import annotations
+
+import cmath
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from .device import DESIGNS, Design, Device, VariableSpec
+from .parameters import Parameter, resolve
+from .ph_plant import DomainError, EMPlant, Jet, OneDOFPlant
+
+
+def _dispatch(real: Callable, complex_: Callable) -> Callable:
+    def f(x):
+        return complex_(x) if isinstance(x, complex) else real(x)
+    f.__name__ = real.__name__
+    return f
+
+
+sqrt = _dispatch(math.sqrt, cmath.sqrt)
+exp = _dispatch(math.exp, cmath.exp)
+log = _dispatch(math.log, cmath.log)
+sin = _dispatch(math.sin, cmath.sin)
+cos = _dispatch(math.cos, cmath.cos)
+tan = _dispatch(math.tan, cmath.tan)
+sinh = _dispatch(math.sinh, cmath.sinh)
+cosh = _dispatch(math.cosh, cmath.cosh)
+tanh = _dispatch(math.tanh, cmath.tanh)
+atan = _dispatch(math.atan, cmath.atan)
+asin = _dispatch(math.asin, cmath.asin)
+acos = _dispatch(math.acos, cmath.acos)
+pi = math.pi
+
+
+class _Described:
+    """What both described plant kinds share: parameters by name, the domain by inequality."""
+
+    PARAMETERS: dict[str, Parameter] = {}
+    VARIABLES: Mapping[str, tuple[VariableSpec, ...]] = {}
+    DOMAIN: tuple[str, ...] = ()
+    """The description's domain inequalities as written (`q < c`); margin j > 0 is inequality j."""
+    DOMAIN_PARAMETERS: tuple[tuple[str, ...], ...] = ()
+    """The parameters in each inequality (named with their values in a DomainError)."""
+    domain_reasons: tuple[str, ...] = ()
+    """What a violation of each inequality means physically (optional, appended to the DomainError)."""
+    params: dict[str, float]
+
+    def _set_parameters(self, params: Mapping[str, float]) -> None:
+        self.params = resolve(self.PARAMETERS, params, self.name)   # type: ignore[attr-defined]
+        for k, v in self.params.items():
+            setattr(self, "_p_" + k, v)                # what the generated functions read
+            if not hasattr(type(self), k):               # the parameters as attributes, unless a method's name
+                setattr(self, k, v)
+        self._setup()
+
+    def _setup(self) -> None:
+        """Generated: the constant matrices (and bounds) from the parameters."""
+        raise NotImplementedError
+
+    def margins(self, q) -> tuple:
+        """Generated: the domain margins g_j(q) (positive inside)."""
+        return ()
+
+    def _domain_error(self, q) -> None:
+        for j, g in enumerate(self.margins(q)):
+            if not np.real(g) > 0:
+                names = ", ".join(f"{s} = {self.params[s]:g} {self.PARAMETERS[s].unit}" for s in self.DOMAIN_PARAMETERS[j])
+                where = ", ".join(f"{v.name} = {np.real(x):.6g} {v.unit}" for v, x in zip(self.VARIABLES["q"], q))
+                reason = f": {self.domain_reasons[j]}" if j < len(self.domain_reasons) else ""
+                raise DomainError(f"{self.name}: {where} violates {self.DOMAIN[j]}"   # type: ignore[attr-defined]
+                                  + (f" ({names})" if names else "") + reason)
+
+
+class DescribedOneDOF(_Described, OneDOFPlant):
+    """A described plant with n_m = n_e = 1 and constant M: scalar V_s, dV, d2V, psi, dpsi, d2psi
+    (generated) on OneDOFPlant's fast path. Inequalities linear in q set q_min / q_max."""
+
+    linear_domain: bool = True
+
+    def __init__(self, **params: float):
+        self._set_parameters(params)
+
+    def domain_margin(self, eta) -> float:
+        if self.linear_domain:
+            return OneDOFPlant.domain_margin(self, eta)
+        return float(min((np.real(g) for g in self.margins(np.real(eta[:1]))), default=math.inf))
+
+    def check_state(self, eta) -> None:
+        OneDOFPlant.check_state(self, eta)
+        q = np.real(eta[0])
+        if self.linear_domain and self.q_min < q < self.q_max:
+            return
+        self._domain_error((q,))
+
+
+class DescribedPlant(_Described, EMPlant):
+    """A described plant of any n_m, n_e (numpy arrays); the model functions are generated."""
+
+    def __init__(self, **params: float):
+        self._set_parameters(params)
+
+    def domain_margin(self, eta) -> float:
+        q = np.real(np.asarray(eta)[:self.n_m])
+        return float(min((g for g in self.margins(q)), default=math.inf))
+
+    def check_state(self, eta) -> None:
+        EMPlant.check_state(self, eta)
+        self._domain_error(np.real(np.asarray(eta)[:self.n_m]))
+
+    def force_jet(self, q, qd, qdd, qddd) -> tuple[np.ndarray, np.ndarray]:
+        """Generated: (F*, dF*/dt) of the p-row of eq. (open-loop elecmech) along a reference jet,
+        F* = M q*'' + (dM/dt) q*' + R_m q*' + grad V(q*) + 1/2 p*^T dM^-1/dq p* (p* = M q*'), the force
+        -grad_q H_e(q*, x_e*) the reference needs (Definition 1)."""
+        raise NotImplementedError
+
+    def feasible_state(self, jet: Jet) -> tuple[np.ndarray, np.ndarray]:
+        """(eta*, x_e*') of a reference jet, Definition 1, for n_e = n_m.
+
+        x_e* solves -1/2 x_e^T dPsi/dq_k(q*) x_e = F*_k (k = 1..n_m) by Newton's method from a real start
+        on the side x_e_sign, then one Newton step in complex arithmetic (exact first derivatives for a
+        complex jet: complex step). Differentiating in time: A x_e*' = -F*' - 1/2 x_e*^T (dPsi_k/dt) x_e*
+        with A_ki = (dPsi/dq_k(q*) x_e*)_i.
+        """
+        if self.n_e != self.n_m:
+            raise NotImplementedError(f"{self.name}: feasible_state needs n_e = n_m (here n_m = {self.n_m}, "
+                                      f"n_e = {self.n_e}): x_e* is not determined by the mechanical equations")
+        q, qd, qdd, qddd = (np.asarray(v).reshape(-1) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
+        q_real = np.real(q).astype(float)
+        if not all(np.real(g) > 0 for g in self.margins(q_real)):
+            self._domain_error(q_real)
+        F, F_dot = self.force_jet(q, qd, qdd, qddd)
+        dPsi_real = np.real(self.dPsi(q_real)).astype(float)
+        x = self._solve_real(dPsi_real, np.real(F).astype(float), q_real)
+        complex_jet = any(np.iscomplexobj(v) for v in (q, qd, qdd, qddd))
+        dPsi = self.dPsi(q) if complex_jet else dPsi_real
+        if complex_jet:                                     # one Newton step in complex arithmetic
+            r = -0.5 * np.einsum("i,kij,j->k", x, dPsi, x) - F
+            x = x - np.linalg.solve(-np.einsum("kij,j->ki", dPsi_real, x), r)
+        A = np.einsum("kij,j->ki", dPsi, x)
+        dPsi_dt = np.einsum("klij,l->kij", self.d2Psi(q), qd)
+        x_dot = np.linalg.solve(A, -F_dot - 0.5 * np.einsum("i,kij,j->k", x, dPsi_dt, x))
+        p = np.linalg.solve(self.M_inv(q), qd)             # p* = M(q*) q*'
+        return np.concatenate([q, p, x]), x_dot
+
+    def _solve_real(self, dPsi: np.ndarray, F: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Real x with -1/2 x^T dPsi_k x = F_k, by damped Newton from x_e_sign * (a common magnitude)."""
+        scale = math.sqrt(2.0 * float(np.max(np.abs(F))) / max(float(np.max(np.abs(dPsi))), 1e-300)) or 1.0
+        x = self.x_e_sign * scale * np.ones(self.n_e)
+        where = ", ".join(f"{v.name}* = {x_:.6g}" for v, x_ in zip(self.VARIABLES["q"], q))
+        for _ in range(100):
+            r = -0.5 * np.einsum("i,kij,j->k", x, dPsi, x) - F
+            A = -np.einsum("kij,j->ki", dPsi, x)
+            if not np.all(np.isfinite(A)) or np.linalg.cond(A) > 1e14:
+                break
+            step = np.linalg.solve(A, r)
+            t = 1.0
+            norm = float(np.linalg.norm(r))
+            while t > 1e-4:
+                x_new = x - t * step
+                if np.linalg.norm(-0.5 * np.einsum("i,kij,j->k", x_new, dPsi, x_new) - F) < norm:
+                    break
+                t /= 2
+            x = x_new
+            if np.linalg.norm(t * step) <= 1e-15 * max(float(np.linalg.norm(x)), 1e-300):
+                r = -0.5 * np.einsum("i,kij,j->k", x, dPsi, x) - F
+                if np.linalg.norm(r) <= 1e-10 * max(float(np.linalg.norm(F)), 1e-300):
+                    return x
+                break
+        raise ValueError(f"{self.name}: infeasible reference at {where}: no real x_e* solves "
+                         f"-1/2 x_e^T dPsi/dq_k(q*) x_e = F*_k = {F.tolist()} (Definition 1)")
+
+
+# ---- the Device of a description ---------------------------------------------------------------------
+GAIN_SHAPES = {"q_d": ("m", 1), "R_e_bar": ("e", "e"), "D_d": ("e", "m"), "k_c": ("e", "e")}
+DESIGN_GAINS = {"Proposition1": ("q_d", "R_e_bar", "D_d"), "Proposition2": ("q_d", "R_e_bar", "k_c", "D_d"),
+                "Theorem2": ("R_e_bar", "D_d"), "Theorem3": ("R_e_bar", "k_c", "D_d")}
+GAIN_TEXT = {"q_d": "set-point position", "R_e_bar": "desired electrical damping R_e_bar = R_e + K_e > 0 (eq. barRe)",
+             "D_d": "coupled damping D_d of eq. (closedloop)", "k_c": "weight K_c of Phi_2 / Theta_2 = 1/2 (z - L)^T K_c (z - L)"}
+
+
+def _electrical_damping_unit(a: str, b: str) -> str:
+    """unit(x_e_i) unit(x_e_j) / J / s: Ohm for fluxes [Wb], 1/Ohm for charges [C]."""
+    if a == b == "Wb":
+        return "Ohm"
+    if a == b == "C":
+        return "1/Ohm"
+    return f"{a}2/J/s" if a == b else f"{a}.{b}/J/s"
+
+
+def gain_unit(gain: str, i: int, j: int, q: Sequence[VariableSpec], x_e: Sequence[VariableSpec]) -> str:
+    """The unit of entry (i, j) of a gain (0-based)."""
+    if gain == "q_d":
+        return q[i].unit
+    if gain == "D_d":
+        return f"{x_e[i].unit}/{q[j].unit}" if q[j].unit != "1" else x_e[i].unit
+    if gain == "R_e_bar":
+        return _electrical_damping_unit(x_e[i].unit, x_e[j].unit)
+    return "1"
+
+
+def make_device(plant_cls: Any, defaults: Mapping[str, list], forms: Mapping[str, tuple[Callable, tuple[str, ...]]],
+                gain_parameters: Mapping[str, Parameter], designs: Sequence[str] | None = None) -> Device:
+    """The Device of a described plant: `defaults[gain]` a matrix (list of rows) of default values for the
+    gains given as numbers; `forms[gain]` = (function of the gain parameters -> matrix, their names) for a
+    plant-specific form (MEMS: R_e_bar = 1/rbar_e); `designs` the designs that apply (default: all)."""
+    from .proposition1 import Proposition1
+    from .proposition2 import Proposition2
+    from .theorem2 import Theorem2
+    from .theorem3 import Theorem3
+
+    V = plant_cls.VARIABLES
+    n_m, n_e = len(V["q"]), len(V["x_e"])
+    dims = {"m": n_m, "e": n_e, 1: 1}
+    scalar = n_m == 1 and n_e == 1
+
+    def entries(gain: str) -> list[tuple[str, int, int]]:
+        r, c = (dims[d] for d in GAIN_SHAPES[gain])
+        if r * c == 1:
+            return [(gain, 0, 0)]
+        if gain == "q_d":
+            return [(f"q_d_{i + 1}", i, 0) for i in range(r)]
+        return [(f"{gain}_{i + 1}_{j + 1}", i, j) for i in range(r) for j in range(c)]
+
+    specs: dict[str, list[Parameter]] = {}
+    for gain in GAIN_SHAPES:
+        if gain in forms:
+            specs[gain] = [gain_parameters[n] for n in forms[gain][1]]
+            continue
+        values = defaults[gain]
+        out = []
+        for name, i, j in entries(gain):
+            condition = "> 0" if scalar and gain in ("R_e_bar", "k_c") else "any"
+            what = GAIN_TEXT[gain] + (f", entry ({i + 1}, {j + 1})" if name != gain else "")
+            if gain == "q_d" and name != gain:
+                what = f"{GAIN_TEXT[gain]} {V['q'][i].name}_d"
+            out.append(Parameter(name, float(values[i][j]), gain_unit(gain, i, j, V["q"], V["x_e"]), what, condition))
+        specs[gain] = out
+
+    def matrix(gain: str, g: Mapping[str, float]) -> np.ndarray:
+        if gain in forms:
+            fn, names = forms[gain]
+            return np.asarray(fn(*(g[n] for n in names)), dtype=float)
+        r, c = (dims[d] for d in GAIN_SHAPES[gain])
+        a = np.zeros((r, c))
+        for name, i, j in entries(gain):
+            a[i, j] = g[name]
+        return a[:, 0] if gain == "q_d" else a
+
+    builders = {
+        "Proposition1": lambda P, m: Proposition1(P, m["q_d"], m["R_e_bar"], D_d=m["D_d"]),
+        "Proposition2": lambda P, m: Proposition2(P, m["q_d"], m["R_e_bar"], k_c=m["k_c"], D_d=m["D_d"]),
+        "Theorem2": lambda P, m: Theorem2(P, m["R_e_bar"], D_d=m["D_d"]),
+        "Theorem3": lambda P, m: Theorem3(P, m["R_e_bar"], k_c=m["k_c"], D_d=m["D_d"]),
+    }
+    chosen = list(DESIGNS) if designs is None else list(designs)
+    unknown = [d for d in chosen if d not in DESIGNS]
+    if unknown:
+        raise ValueError(f"{plant_cls.__name__}: unknown design(s) {unknown}; the designs are {list(DESIGNS)}")
+    out_designs = {}
+    for name in chosen:
+        gains = DESIGN_GAINS[name]
+        table = {p.name: p for gain in gains for p in specs[gain]}
+
+        def make(P: EMPlant, g: Mapping[str, float], _gains=gains, _name=name) -> object:
+            return builders[_name](P, {gain: matrix(gain, g) for gain in _gains})
+        out_designs[name] = Design(name, table, make)     # type: ignore[arg-type]
+    return Device(plant_cls.DEVICE_NAME, plant_cls.name, plant_cls.PARAMETERS, V["q"], V["p"], V["x_e"], V["u"],
+                  plant=plant_cls, designs=out_designs)

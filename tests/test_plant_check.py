@@ -370,3 +370,11 @@ def test_bar_tracks_a_stacked_reference_over_the_longest_period():
     tilted = check(parse(BAR), reference=Stacked([Sinusoid(offset=0.002, amplitude=0.0, omega=0.0),
                                                    Sinusoid(offset=0.06, amplitude=0.0, omega=0.0)]))
     assert tilted.reference.verdict == FAILS and "Theorem3" not in tilted.designs
+
+
+def test_the_device_gets_the_designs_that_apply():
+    from components.description import device
+
+    desc = load(PLANTS / "maglev.toml")
+    r = check(desc)
+    assert sorted(device(desc, r.designs).designs) == ["Proposition2", "Theorem3"]

@@ -183,11 +183,12 @@ class DescribedPlant(_Described, EMPlant):
 
 
 # ---- the Device of a description ---------------------------------------------------------------------
-GAIN_SHAPES = {"q_d": ("m", 1), "R_e_bar": ("e", "e"), "D_d": ("e", "m"), "k_c": ("e", "e")}
-DESIGN_GAINS = {"Proposition1": ("q_d", "R_e_bar", "D_d"), "Proposition2": ("q_d", "R_e_bar", "k_c", "D_d"),
-                "Theorem2": ("R_e_bar", "D_d"), "Theorem3": ("R_e_bar", "k_c", "D_d")}
+GAIN_SHAPES = {"q_d": ("m", 1), "R_e_bar": ("e", "e"), "D_d": ("e", "m"), "k_c": ("e", "e"), "W": ("e", "e")}
+DESIGN_GAINS = {"Proposition1": ("q_d", "R_e_bar", "D_d", "W"), "Proposition2": ("q_d", "R_e_bar", "k_c", "D_d"),
+                "Theorem2": ("R_e_bar", "D_d", "W"), "Theorem3": ("R_e_bar", "k_c", "D_d")}
 GAIN_TEXT = {"q_d": "set-point position", "R_e_bar": "desired electrical damping R_e_bar = R_e + K_e > 0 (eq. barRe)",
-             "D_d": "coupled damping D_d of eq. (closedloop)", "k_c": "weight K_c of Phi_2 / Theta_2 = 1/2 (z - L)^T K_c (z - L)"}
+             "D_d": "coupled damping D_d of eq. (closedloop)", "k_c": "weight K_c of Phi_2 / Theta_2 = 1/2 (z - L)^T K_c (z - L)",
+             "W": "weight W of Phi_1 / Theta_1 = 1/2 (x_e - x_c)^T W (x_e - x_c) (eqs. c1, u1-track; the paper's examples: 1)"}
 
 
 def _electrical_damping_unit(a: str, b: str) -> str:
@@ -207,6 +208,9 @@ def gain_unit(gain: str, i: int, j: int, q: Sequence[VariableSpec], x_e: Sequenc
         return f"{x_e[i].unit}/{q[j].unit}" if q[j].unit != "1" else x_e[i].unit
     if gain == "R_e_bar":
         return _electrical_damping_unit(x_e[i].unit, x_e[j].unit)
+    if gain == "W":                                # Phi_1 [J] / (x_e_i x_e_j)
+        a, b = x_e[i].unit, x_e[j].unit
+        return {"Wb": "1/H", "C": "1/F"}[a] if a == b and a in ("Wb", "C") else f"J/{a}/{b}"
     return "1"
 
 
@@ -235,20 +239,24 @@ def make_device(plant_cls: Any, defaults: Mapping[str, list], forms: Mapping[str
 
     specs: dict[str, list[Parameter]] = {}
     for gain in GAIN_SHAPES:
+        if gain == "W" and gain not in forms and gain not in defaults:
+            continue                               # Phi_1 / Theta_1 with the paper's W = I
         if gain in forms:
             specs[gain] = [gain_parameters[n] for n in forms[gain][1]]
             continue
         values = defaults[gain]
         out = []
         for name, i, j in entries(gain):
-            condition = "> 0" if scalar and gain in ("R_e_bar", "k_c") else "any"
+            condition = "> 0" if scalar and gain in ("R_e_bar", "k_c", "W") else "any"
             what = GAIN_TEXT[gain] + (f", entry ({i + 1}, {j + 1})" if name != gain else "")
             if gain == "q_d" and name != gain:
                 what = f"{GAIN_TEXT[gain]} {V['q'][i].name}_d"
             out.append(Parameter(name, float(values[i][j]), gain_unit(gain, i, j, V["q"], V["x_e"]), what, condition))
         specs[gain] = out
 
-    def matrix(gain: str, g: Mapping[str, float]) -> np.ndarray:
+    def matrix(gain: str, g: Mapping[str, float]) -> np.ndarray | None:
+        if gain not in specs:                      # W not a gain: the controller's default (identity)
+            return None
         if gain in forms:
             fn, names = forms[gain]
             return np.asarray(fn(*(g[n] for n in names)), dtype=float)
@@ -259,9 +267,9 @@ def make_device(plant_cls: Any, defaults: Mapping[str, list], forms: Mapping[str
         return a[:, 0] if gain == "q_d" else a
 
     builders = {
-        "Proposition1": lambda P, m: Proposition1(P, m["q_d"], m["R_e_bar"], D_d=m["D_d"]),
+        "Proposition1": lambda P, m: Proposition1(P, m["q_d"], m["R_e_bar"], D_d=m["D_d"], W=m["W"]),
         "Proposition2": lambda P, m: Proposition2(P, m["q_d"], m["R_e_bar"], k_c=m["k_c"], D_d=m["D_d"]),
-        "Theorem2": lambda P, m: Theorem2(P, m["R_e_bar"], D_d=m["D_d"]),
+        "Theorem2": lambda P, m: Theorem2(P, m["R_e_bar"], D_d=m["D_d"], W=m["W"]),
         "Theorem3": lambda P, m: Theorem3(P, m["R_e_bar"], k_c=m["k_c"], D_d=m["D_d"]),
     }
     chosen = list(DESIGNS) if designs is None else list(designs)
@@ -270,11 +278,11 @@ def make_device(plant_cls: Any, defaults: Mapping[str, list], forms: Mapping[str
         raise ValueError(f"{plant_cls.__name__}: unknown design(s) {unknown}; the designs are {list(DESIGNS)}")
     out_designs = {}
     for name in chosen:
-        gains = DESIGN_GAINS[name]
+        gains = tuple(g for g in DESIGN_GAINS[name] if g in specs)
         table = {p.name: p for gain in gains for p in specs[gain]}
 
-        def make(P: EMPlant, g: Mapping[str, float], _gains=gains, _name=name) -> object:
-            return builders[_name](P, {gain: matrix(gain, g) for gain in _gains})
+        def make(P: EMPlant, g: Mapping[str, float], _name=name) -> object:
+            return builders[_name](P, {gain: matrix(gain, g) for gain in DESIGN_GAINS[_name]})
         out_designs[name] = Design(name, table, make)     # type: ignore[arg-type]
     return Device(plant_cls.DEVICE_NAME, plant_cls.name, plant_cls.PARAMETERS, V["q"], V["p"], V["x_e"], V["u"],
                   plant=plant_cls, designs=out_designs)

@@ -40,7 +40,7 @@ MODEL_REQUIRED = ("M", "V", "Psi", "R_m", "J_e", "R_e", "G_e")
 MODEL_OPTIONAL = ("domain", "Gamma", "phi", "x_e_sign")
 VARIABLE_KINDS = ("q", "p", "x_e", "u")
 TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller"}
-CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c")
+CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c", "W")
 NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 DEVICE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*\Z")
 NUMBER = re.compile(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
@@ -536,7 +536,7 @@ class _Parser:
         self.gain_matrices: dict[str, sympy.Matrix] = {}
         try:
             shapes = {"q_d": (self.n_m, 1), "R_e_bar": (self.n_e, self.n_e), "D_d": (self.n_e, self.n_m),
-                      "k_c": (self.n_e, self.n_e)}
+                      "k_c": (self.n_e, self.n_e), "W": (self.n_e, self.n_e)}
             for gain in CONTROLLER_GAINS:
                 if gain in table:
                     value = table[gain]
@@ -567,6 +567,8 @@ def gain_table(desc: Description) -> tuple[dict[str, list[list[float]]], dict[st
     forms: dict[str, tuple[sympy.Matrix, tuple[str, ...]]] = {}
     for gain in CONTROLLER_GAINS:
         A = desc.gains.get(gain)
+        if A is None and gain == "W":               # no gain W: Phi_1 / Theta_1 with W = I, as in the paper
+            continue
         if A is not None and A.free_symbols:
             names = tuple(n for n in desc.gain_parameters if sympy.Symbol(n, real=True) in A.free_symbols)
             forms[gain] = (A, names)

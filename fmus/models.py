@@ -17,7 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from components import maglev, mems
+from components import maglev
+from components.catalog import DEVICES
 
 from .controller import ControllerSlave
 from .plant import PlantSlave
@@ -39,22 +40,24 @@ class Model:
 MODELS: dict[str, Model] = {
     "MEMS": Model(PlantSlave, "MEMS optical switch (paper Section 7.1): input voltage u, outputs q, p, x_e and "
                   "the energy H", (0.0, 9e-4, 1e-6),
-                  {"plant_module": mems, "initial_state": (15e-6, 0.0, 0.0), "input_start": 25.0}),
+                  {"device": DEVICES["MEMS"], "initial_state": (15e-6, 0.0, 0.0), "input_start": 25.0}),
     "Maglev": Model(PlantSlave, "magnetic levitation system (paper Section 7.2): input voltage u, outputs q, p, "
                     "x_e and the energy H", (0.0, 0.5, 1e-3),
-                    {"plant_module": maglev, "initial_state": MAGLEV_EQUILIBRIUM, "input_start": 0.0}),
+                    {"device": DEVICES["Maglev"], "initial_state": MAGLEV_EQUILIBRIUM, "input_start": 0.0}),
     "MEMS_Proposition1": Model(ControllerSlave, "Proposition 1 (eq. c1) for the MEMS optical switch: u from "
                                "(q, p, x_e)", (0.0, 1e-3, 1e-4),
-                               {"plant_module": mems, "input_start": (15e-6, 0.0, 0.0)}),
+                               {"device": DEVICES["MEMS"], "design": "Proposition1", "input_start": (15e-6, 0.0, 0.0)}),
     "MEMS_Theorem2": Model(ControllerSlave, "Theorem 2 (eq. u1-track) for the MEMS optical switch: u from "
                            "(q, p, x_e) and the reference jet", (0.0, 1e-3, 1e-4),
-                           {"plant_module": mems, "input_start": (15e-6, 0.0, 0.0, 3e-5, 0.0, 0.0, 0.0)}),
+                           {"device": DEVICES["MEMS"], "design": "Theorem2",
+                             "input_start": (15e-6, 0.0, 0.0, 3e-5, 0.0, 0.0, 0.0)}),
     "Maglev_Proposition2": Model(ControllerSlave, "Proposition 2 (eq. u2) for the magnetic levitation system: u "
                                  "from (q, p, x_e)", (0.0, 0.1, 1e-2),
-                                 {"plant_module": maglev, "input_start": MAGLEV_EQUILIBRIUM}),
+                                 {"device": DEVICES["Maglev"], "design": "Proposition2", "input_start": MAGLEV_EQUILIBRIUM}),
     "Maglev_Theorem3": Model(ControllerSlave, "Theorem 3 (eq. tracker2) for the magnetic levitation system: u "
                              "from (q, p, x_e) and the reference jet", (0.0, 0.1, 1e-2),
-                             {"plant_module": maglev, "input_start": MAGLEV_EQUILIBRIUM + (0.0025, 0.0, 0.0, 0.0)}),
+                             {"device": DEVICES["Maglev"], "design": "Theorem3",
+                               "input_start": MAGLEV_EQUILIBRIUM + (0.0025, 0.0, 0.0, 0.0)}),
     "Reference": Model(ReferenceSlave, "reference generator: constant, sinusoid or smooth transition; outputs the "
                        "jet q*, q*', q*'', q*'''", (0.0, 0.5, 1e-3)),
 }

@@ -15,10 +15,14 @@ Default experiments (docs/fmus.md, "Run with fmpy"):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from types import ModuleType
+from typing import Any, Sequence
+
+import numpy as np
 
 from components import maglev
 from components.catalog import DEVICES
+from components.device import Device
 
 from .controller import ControllerSlave
 from .plant import PlantSlave
@@ -69,3 +73,77 @@ def slave_class(identifier: str) -> type:
     return type(identifier, (model.adapter,), {"model_identifier": identifier, "summary": model.summary,
                                                "experiment": model.experiment, **model.attributes,
                                                "__module__": __name__})
+
+
+# the paper's equation of each design's control law
+LAWS = {"Proposition1": "eq. c1", "Proposition2": "eq. u2", "Theorem2": "eq. u1-track", "Theorem3": "eq. tracker2"}
+DEFAULT_EXPERIMENT = (0.0, 1.0, 1e-3)
+
+
+def module_device(module: ModuleType) -> Device:
+    """The Device of a device module: its `DEVICE`, a Device or a function that returns one."""
+    device = getattr(module, "DEVICE", None)
+    if device is not None and not isinstance(device, Device) and callable(device):
+        device = device()
+    if not isinstance(device, Device):
+        raise ValueError(f"device module {module.__name__} defines no DEVICE (a components.device.Device or a "
+                         "function returning one)")
+    return device
+
+
+def default_initial_state(device: Device) -> tuple[float, ...]:
+    """A plant FMU's start values of q_0, p_0, x_e_0 when the device module gives none (INITIAL_STATE): the
+    equilibrium eta_d = (q_d, 0, x_e_d) (EMPlant.equilibrium) at the default q_d of the first regulation
+    design, else eta = 0; ValueError if that is not admissible (check_state)."""
+    plant = device.plant()
+    for design in device.designs.values():
+        names = ["q_d"] if "q_d" in design.gains else [f"q_d_{i + 1}" for i in range(device.n_m)]
+        if not design.tracking and all(n in design.gains for n in names):
+            try:
+                return tuple(float(v) for v in plant.equilibrium(np.array([design.gains[n].default for n in names])))
+            except (ValueError, ArithmeticError, NotImplementedError):
+                continue
+    eta = np.zeros(len(device.states))
+    try:
+        plant.check_state(eta)
+    except ValueError as exc:
+        raise ValueError(f"{device.name}: eta = 0 is not admissible ({exc}) and no regulation design gives an "
+                         "equilibrium: give the device module an INITIAL_STATE") from None
+    return tuple(eta.tolist())
+
+
+def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = None,
+                         module_name: str = __name__) -> dict[str, type]:
+    """The slave classes of a device module's FMUs, by model identifier: the plant <name> (PlantSlave) and one
+    controller <name>_<design> (ControllerSlave) per design (default: every design of the device).
+
+    The module defines DEVICE (module_device) and may define INITIAL_STATE (q_0, p_0, x_e_0; default:
+    default_initial_state) and EXPERIMENT ((start, stop, step) of every FMU's DefaultExperiment; default
+    DEFAULT_EXPERIMENT). The plant's inputs start at 0; a controller's inputs start at the plant's initial
+    state and, tracking, the jet of the constant reference q* = q_0."""
+    device = module_device(module)
+    chosen = list(device.designs) if designs is None else list(designs)
+    unknown = [d for d in chosen if d not in device.designs]
+    if unknown:
+        raise ValueError(f"{device.name}: no design(s) {unknown}; the designs of the device: {sorted(device.designs)}")
+    initial = tuple(float(v) for v in getattr(module, "INITIAL_STATE", None) or default_initial_state(device))
+    if len(initial) != len(device.states):
+        raise ValueError(f"{device.name}: INITIAL_STATE has {len(initial)} entries, expected {len(device.states)} "
+                         f"({', '.join(v.name for v in device.states)})")
+    experiment = tuple(float(v) for v in getattr(module, "EXPERIMENT", DEFAULT_EXPERIMENT))
+    u_names = ", ".join(v.name for v in device.u)
+    classes = {device.name: type(device.name, (PlantSlave,), {
+        "model_identifier": device.name, "experiment": experiment, "device": device, "initial_state": initial,
+        "input_start": 0.0 if device.n_e == 1 else (0.0,) * device.n_e, "__module__": module_name,
+        "summary": f"{device.description}: inputs {u_names}, outputs the states and the energy H"})}
+    q0 = initial[:device.n_m]
+    for name in chosen:
+        design = device.designs[name]
+        identifier = device.controller_identifier(name)
+        jet = (q0 + (0.0,) * (3 * device.n_m)) if design.tracking else ()
+        classes[identifier] = type(identifier, (ControllerSlave,), {
+            "model_identifier": identifier, "experiment": experiment, "device": device, "design": name,
+            "input_start": initial + jet, "__module__": module_name,
+            "summary": f"{name} ({LAWS[name]}) for {device.description}: {u_names} from the states"
+                       + (" and the reference jet" if design.tracking else "")})
+    return classes

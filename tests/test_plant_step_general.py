@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from components.maglev import Maglev
 from components.ph_plant import DomainError
 from components.plant_step import (
     GeneralStepper,
@@ -17,7 +18,6 @@ from components.plant_step import (
     vector_input,
     vector_terms,
 )
-from components.maglev import Maglev
 from tests.plants_for_tests import TwoAxisLevitator
 
 ETA0 = np.array([0.1, -0.2, 0.3, 0.1, 1.0, 0.8])

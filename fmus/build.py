@@ -396,9 +396,10 @@ def build_device(device_module: Path | str, device_name: str | None, designs: Se
                  dest: Path | str, description: Path | str | None = None) -> dict[str, Path]:
     """Build the FMUs of a device into `dest`: the plant `<name>.fmu` and one `<name>_<Design>.fmu` per design.
 
-    device_module  Python source that defines DEVICE (a components.device.Device, or a function returning one),
-                   optionally INITIAL_STATE and EXPERIMENT (fmus.models.device_slave_classes); it may import
-                   numpy, scipy, the standard library and components (a plant description's generated module)
+    device_module  Python source that defines DEVICE (a components.device.Device, or a function returning one)
+                   or device(designs) (components.codegen's generated modules), optionally INITIAL_STATE and
+                   EXPERIMENT (fmus.models.device_slave_classes); it may import numpy, scipy, the standard
+                   library and components
     device_name    the name DEVICE must have (the FMUs' identifier stem), or None for any
     designs        the designs to build (each must be one of the device's), or None for all of them
     description    the plant description file, copied into every FMU's resources/ (or None)
@@ -411,7 +412,7 @@ def build_device(device_module: Path | str, device_name: str | None, designs: Se
 
     source = Path(device_module).resolve()
     module = load_device_module(source)
-    device = module_device(module)
+    device = module_device(module, designs)
     if not IDENTIFIER.fullmatch(device.name):
         raise ValueError(f"{source}: device name {device.name!r} is not an identifier [A-Za-z][A-Za-z0-9]*")
     if device_name is not None and device.name != device_name:
@@ -425,6 +426,21 @@ def build_device(device_module: Path | str, device_name: str | None, designs: Se
                                           controllers=", ".join(c for c in classes if c != device.name) or "none"))
         return build_fmus({identifier: binding for identifier in classes}, dest,
                           extra_modules=[source], resource_files=extras)
+
+
+def build_description(description: Path | str, dest: Path | str, designs: Sequence[str] | None = None) -> dict[str, Path]:
+    """The FMUs of a plant description file (TOML, issue 25): components.codegen writes its model module
+    (`<stem>_model.py`, in a temporary folder), then `build_device` builds the plant and a
+    controller per design of `designs` (None: those the generated device() gives), with the description
+    file in resources/. A DescriptionError (components.description) names a wrong entry; nothing is built."""
+    description = Path(description).resolve()
+    loader = importlib.import_module("components.description")
+    codegen = importlib.import_module("components.codegen")
+    desc = loader.load(description)
+    with tempfile.TemporaryDirectory(prefix="emcosim_description_") as tmp:
+        module = Path(tmp) / f"{description.stem.lower()}_model.py"
+        module.write_text(codegen.module_source(desc, description.name))
+        return build_device(module, desc.name, designs, dest, description=description)
 
 
 def up_to_date(dest: Path | str | None = None, current: str | None = None) -> bool:

@@ -80,14 +80,17 @@ LAWS = {"Proposition1": "eq. c1", "Proposition2": "eq. u2", "Theorem2": "eq. u1-
 DEFAULT_EXPERIMENT = (0.0, 1.0, 1e-3)
 
 
-def module_device(module: ModuleType) -> Device:
-    """The Device of a device module: its `DEVICE`, a Device or a function that returns one."""
+def module_device(module: ModuleType, designs: Sequence[str] | None = None) -> Device:
+    """The Device of a device module: its `DEVICE` (a Device, or a function returning one) or its function
+    `device(designs)` (a plant description's generated module, components.codegen: the designs asked for)."""
     device = getattr(module, "DEVICE", None)
     if device is not None and not isinstance(device, Device) and callable(device):
         device = device()
+    if device is None and callable(getattr(module, "device", None)):
+        device = module.device(None if designs is None else list(designs))
     if not isinstance(device, Device):
-        raise ValueError(f"device module {module.__name__} defines no DEVICE (a components.device.Device or a "
-                         "function returning one)")
+        raise ValueError(f"device module {module.__name__} defines neither DEVICE (a components.device.Device or a "
+                         "function returning one) nor device(designs)")
     return device
 
 
@@ -117,11 +120,11 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
     """The slave classes of a device module's FMUs, by model identifier: the plant <name> (PlantSlave) and one
     controller <name>_<design> (ControllerSlave) per design (default: every design of the device).
 
-    The module defines DEVICE (module_device) and may define INITIAL_STATE (q_0, p_0, x_e_0; default:
+    The module defines DEVICE or device(designs) (module_device) and may define INITIAL_STATE (q_0, p_0, x_e_0; default:
     default_initial_state) and EXPERIMENT ((start, stop, step) of every FMU's DefaultExperiment; default
     DEFAULT_EXPERIMENT). The plant's inputs start at 0; a controller's inputs start at the plant's initial
     state and, tracking, the jet of the constant reference q* = q_0."""
-    device = module_device(module)
+    device = module_device(module, designs)
     chosen = list(device.designs) if designs is None else list(designs)
     unknown = [d for d in chosen if d not in device.designs]
     if unknown:

@@ -276,3 +276,30 @@ def test_a_renamed_maglev_equals_the_suites_maglev(tmp_path, fmus):
     b = simulate_fmu(str(fmus["Maglev"]), stop_time=0.2, output_interval=1e-3, start_values={"u": -0.5})
     for n in ("q", "p", "x_e", "H"):
         assert np.array_equal(a[n], b[n])
+
+
+def test_a_generated_module_gives_its_device_through_device_designs():
+    """components.codegen's modules define device(designs) instead of DEVICE: the designs asked for reach it."""
+    import types
+
+    from components.catalog import DEVICES
+    from fmus.models import device_slave_classes, module_device
+
+    asked = []
+    module = types.ModuleType("generated")
+    module.device = lambda designs=None: asked.append(designs) or DEVICES["Maglev"]
+    assert module_device(module, ["Theorem3"]) is DEVICES["Maglev"] and asked == [["Theorem3"]]
+    assert sorted(device_slave_classes(module, ["Theorem3"])) == ["Maglev", "Maglev_Theorem3"]
+    with pytest.raises(ValueError, match="neither DEVICE"):
+        module_device(types.ModuleType("empty"))
+
+
+def test_derivative_dependencies_follow_the_structure():
+    """q' = M^-1(q) p depends on q only when the mass does (eq. open-loop elecmech)."""
+    from fmus.plant import derivative_dependencies
+    from tests.device_two_axis import DEVICE
+
+    q, p = ["q_1", "q_2"], ["p_1", "p_2"]
+    assert derivative_dependencies(DEVICE, True)["q_2"] == p
+    assert derivative_dependencies(DEVICE, False)["q_2"] == p + q
+    assert derivative_dependencies(DEVICE, False)["x_e_2"] == q + ["x_e_1", "x_e_2", "u_1", "u_2"]

@@ -791,18 +791,25 @@ class GeneralStepper:
         plant, s = self.plant, self.scale
         eta = y * s
         jac = plant.jacobian(eta) * s[None, :] / s[:, None]            # J = F hess H, eq. (open-loop elecmech)
-        lu = scipy.linalg.lu_factor(np.eye(plant.n) / (h * _GAMMA) - jac)
-        ft = h * (self.g @ vector_input(terms, t, 1)) / s              # h f_t, scaled
-        Ks: list[np.ndarray] = []
+        lu = scipy.linalg.lu_factor(np.eye(plant.n) / (h * _GAMMA) - jac, check_finite=False)
+        held = len(terms) == 1                                         # u constant: no f_t term, one input value
+        ft = None if held else h * (self.g @ vector_input(terms, t, 1)) / s    # h f_t, scaled
+        K = np.zeros((6, plant.n))
         hi = 1.0 / h
         Y = y
+        u0 = terms[0][1]
         for i in range(6):
-            Y = y + sum((a * K for a, K in zip(_A[i], Ks)), np.zeros_like(y))
-            c = sum((c_ * K for c_, K in zip(_C[i], Ks)), np.zeros_like(y))
-            ui = vector_input(terms, t + _STAGE_TIME[i] * h)
-            r = plant.f(Y * s, ui) / s + hi * c + _STAGE_GAMMA[i] * ft
-            Ks.append(scipy.linalg.lu_solve(lu, r))
-        return Y + Ks[5], Ks[5]
+            Y = y + _A_ROWS[i] @ K
+            r = plant.f(Y * s, u0 if held else vector_input(terms, t + _STAGE_TIME[i] * h)) / s + hi * (_C_ROWS[i] @ K)
+            if ft is not None:
+                r = r + _STAGE_GAMMA[i] * ft
+            K[i] = scipy.linalg.lu_solve(lu, r, check_finite=False)
+        return Y + K[5], K[5]
+
+
+# RODAS4's a_ij and c_ij as rows of a 6 x 6 strictly lower triangular matrix (GeneralStepper._rodas4)
+_A_ROWS = np.array([list(row) + [0.0] * (6 - len(row)) for row in _A])
+_C_ROWS = np.array([list(row) + [0.0] * (6 - len(row)) for row in _C])
 
 
 def make_stepper(plant: EMPlant, rtol: float = DEFAULT_RTOL) -> PlantStepper | GeneralStepper:

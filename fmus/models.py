@@ -1,6 +1,8 @@
-"""The seven emcosim FMUs, one row each: which adapter, which components/ model, what the FMU shows on its
-own (its start values and DefaultExperiment). build.py builds one FMU per row; `slave_class` makes the
-row's slave class, which the FMU's generated script binds to the model identifier.
+"""The seven emcosim FMUs, one row each: which adapter, which device (components.catalog.DEVICES) and design,
+what the FMU shows on its own (its start values and DefaultExperiment). build.py builds one FMU per row;
+`slave_class` makes the row's slave class, which the FMU's generated script binds to the model identifier.
+Any other device (a plant description's generated module, a test's): `device_slave_classes`, the same
+adapters with start values of its own (build.py, `build_device`).
 
 Default experiments (docs/fmus.md, "Run with fmpy"):
 - MEMS: the open-loop response to a constant 25 V from the paper's initial state (q, p, x_e) = (15e-6 m,

@@ -328,3 +328,10 @@ def test_plant_integrates_the_polynomial_of_each_input(device_fmus):
                         jac=lambda t, x: P.jacobian(x)).y[:, -1]
         assert np.max(np.abs(np.array(s.get(*STATES)) - eta) / (1 + np.abs(eta))) < 1e-9
     s.free()
+
+
+def test_the_build_is_reproducible(device_fmus, tmp_path):
+    """The same device module and description give byte-identical FMUs (fingerprint, GUID, archive)."""
+    description = device_fmus["TwoAxis"].parent.parent / "TwoAxis.toml"
+    again = build_device(HERE / "device_two_axis.py", "TwoAxis", None, tmp_path, description=description)
+    assert all(again[k].read_bytes() == device_fmus[k].read_bytes() for k in device_fmus)

@@ -101,9 +101,10 @@ def nominal_scale(plant: EMPlant) -> np.ndarray:
     Length L: the distance from q = 0 to the domain boundary (MEMS c0, maglev c), else 1.
     Force F: |V'(L)|. Mechanical time T = sqrt(m L / F); momentum m L / T. Electrical state: the x_e
     whose force 1/2 |Psi'(0)| x_e^2 equals F. These only set the absolute tolerance of the integration.
+    Plants with n_m > 1 or n_e > 1: `_nominal_scale_general`, the same construction per axis.
     """
     if plant.n_m != 1 or plant.n_e != 1:
-        raise NotImplementedError(f"{plant.name}: nominal_scale needs n_m = n_e = 1")
+        return _nominal_scale_general(plant)
     zero = np.zeros(plant.n)
     L = plant.domain_margin(zero)
     L = L if math.isfinite(L) and L > 0 else 1.0
@@ -113,6 +114,62 @@ def nominal_scale(plant: EMPlant) -> np.ndarray:
     dPsi = abs(float(plant.dPsi(np.zeros(1))[0, 0, 0]))
     x_e = math.sqrt(2.0 * force / dPsi) if dPsi > 0 else 1.0
     return np.array([L, m * L / T, x_e])
+
+
+def _boundary_distance(plant: EMPlant, direction: np.ndarray) -> float:
+    """The distance t > 0 from eta = 0 along `direction` (a unit vector in q) to the boundary of the
+    admissible domain (domain_margin <= 0 or not finite), to 1e-3 relative; inf if none up to 1e6; nan if
+    eta = 0 is itself outside."""
+    eta = np.zeros(plant.n)
+
+    def inside(t: float) -> bool:
+        eta[:plant.n_m] = t * direction
+        margin = plant.domain_margin(eta)
+        return bool(np.isfinite(margin) and margin > 0) or margin == np.inf
+
+    if not inside(0.0):
+        return math.nan
+    low, high = 0.0, 1e-12
+    while inside(high):
+        if high >= 1e6:
+            return math.inf
+        low, high = high, high * 10.0
+    while high - low > 1e-3 * high:
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if inside(mid) else (low, mid)
+    return low
+
+
+def _nominal_scale_general(plant: EMPlant) -> np.ndarray:
+    """`nominal_scale` for any n_m, n_e: the one-degree-of-freedom construction per axis.
+
+    Position q_i: L_i, the distance from q = 0 along +-e_i to the domain's boundary (the nearer one), else 1
+    (no boundary within 1e6, or q = 0 outside the domain). Force F_i = |dV/dq_i (L_i e_i)|, else 1.
+    Momentum p_i: m_i L_i / T_i with m_i = 1 / (M^-1(0))_ii and T_i = sqrt(m_i L_i / F_i). Electrical
+    state x_e_j: the x whose force 1/2 |dPsi_jj/dq_k(0)| x^2 equals F_k on the axis k where Psi_jj varies
+    most, else 1. A scale that comes out zero or not finite is 1. They only set the absolute tolerance.
+    """
+    m, e = plant.n_m, plant.n_e
+    L, force, mass = np.ones(m), np.ones(m), np.ones(m)
+    M_inv = np.real(np.asarray(plant.M_inv(np.zeros(m)), dtype=float))
+    for i in range(m):
+        unit = np.zeros(m)
+        unit[i] = 1.0
+        d = min(_boundary_distance(plant, unit), _boundary_distance(plant, -unit))
+        if math.isfinite(d) and d > 0:
+            L[i] = d
+        F_i = abs(float(np.real(plant.grad_V(L[i] * unit)[i])))
+        force[i] = F_i if math.isfinite(F_i) and F_i > 0 else 1.0
+        mass[i] = 1.0 / M_inv[i, i] if M_inv[i, i] > 0 else 1.0
+    T = np.sqrt(mass * L / force)
+    x_e = np.ones(e)
+    dPsi = np.abs(np.real(np.asarray(plant.dPsi(np.zeros(m)), dtype=float)))      # (n_m, n_e, n_e)
+    for j in range(e):
+        k = int(np.argmax(dPsi[:, j, j]))
+        if dPsi[k, j, j] > 0:
+            x_e[j] = math.sqrt(2.0 * force[k] / dPsi[k, j, j])
+    s = np.concatenate([L, mass * L / T, x_e])
+    return np.where(np.isfinite(s) & (s > 0), s, 1.0)
 
 
 def mechanical_time(plant: EMPlant) -> float:
@@ -598,6 +655,169 @@ def _lu3(G: np.ndarray):
 def _solve_dense(lu, r):
     import scipy.linalg
     return tuple(scipy.linalg.lu_solve(lu, np.asarray(r, dtype=float)))
+
+
+def vector_terms(u, derivatives: Mapping[int, Sequence[float]] | None, n_e: int) -> tuple[tuple[int, np.ndarray], ...]:
+    """The terms (k, u^(k)) of an input polynomial u(tau) = sum_k u^(k) tau^k / k! with vector coefficients
+    (shape (n_e,)): order 0 is u, the others come from `derivatives` ({k: d^k u/dt^k}, k >= 1, missing orders
+    and entries 0). ValueError naming the order for a wrong shape, an order that is not an integer >= 1, or a
+    value that is not finite."""
+    terms = []
+    for k, c in [(0, u), *sorted((derivatives or {}).items())]:
+        if isinstance(k, bool) or not isinstance(k, int) or k < 0 or (k == 0 and terms):
+            raise ValueError(f"input derivative order {k!r} is not an integer >= 1")
+        a = np.array(c, dtype=float).reshape(-1)
+        if a.shape != (n_e,):
+            raise ValueError(f"input derivative of order {k} has {a.size} entries, expected n_e = {n_e}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"input {'u' if k == 0 else f'derivative d^{k}u/dt^{k}'} = {a.tolist()} is not finite")
+        if k == 0 or np.any(a != 0.0):
+            terms.append((k, a))
+    return tuple(terms)
+
+
+def vector_input(terms: Sequence[tuple[int, np.ndarray]], tau: float, shift: int = 0) -> np.ndarray:
+    """d^shift/dtau^shift of the vector input polynomial of `vector_terms` at tau >= 0."""
+    total = np.zeros_like(terms[0][1])
+    for k, c in terms:
+        if k >= shift:
+            total = total + c * _power_over_factorial(tau, k - shift)
+    return total
+
+
+class GeneralStepper:
+    """`PlantStepper` for any n_m, n_e (a plant that is not a OneDOFPlant with three states): the state
+    eta = (q, p, x_e) and the input u (n_e entries) as numpy arrays.
+
+    Over a communication step of size h the input is held or, per input, the polynomial
+    u(t + tau) = sum_k u^(k) tau^k / k! (the derivatives the master set, any orders), and eq. (open-loop
+    elecmech), eta' = F grad H(eta) + g u(t), is integrated by the same RODAS4 as PlantStepper's: the
+    analytic Jacobian F hess H (EMPlant.jacobian), the stage times and the f_t = g u'(t) terms of the
+    time-varying input, states scaled by `nominal_scale`, a substep accepted when the RMS over the n states
+    of err_i / (rtol (1 + |xi_i|)) is <= 1, the proposed substep carried over (`h_next`). There is no
+    closed-form electrical layer here (PlantStepper's shortcut for the stiff n_e = 1 layer): a stiff
+    electrical layer is resolved by the error control (correct, more substeps).
+
+    rtol      relative tolerance (absolute tolerance rtol * nominal_scale)
+    h_next    integrator state: the substep proposed for the next step (0: none yet); an FMU saves and
+              restores it with its state
+    """
+
+    def __init__(self, plant: EMPlant, rtol: float = DEFAULT_RTOL, max_substeps: int = MAX_SUBSTEPS):
+        if not (math.isfinite(rtol) and RTOL_RANGE[0] <= rtol <= RTOL_RANGE[1]):
+            low, high = (f"{v:.0e}".replace("e-0", "e-") for v in RTOL_RANGE)
+            raise ValueError(f"parameter rtol = {rtol} violates {low} <= rtol <= {high} "
+                             "(relative tolerance of the plant integration)")
+        self.plant = plant
+        self.rtol = float(rtol)
+        self.max_substeps = int(max_substeps)
+        self.scale = np.asarray(nominal_scale(plant), dtype=float)
+        self.g = plant.g()
+        self.h_next = 0.0
+        self.n_substeps = 0
+        self.n_rejected = 0
+
+    def check(self, eta: np.ndarray) -> None:
+        """Raise the plant's DomainError if eta is not finite or outside the domain."""
+        if not (np.all(np.isfinite(eta)) and self.plant.domain_margin(eta) > 0):
+            self.plant.check_state(eta)
+            raise DomainError(f"{self.plant.name}: state {eta} is outside the domain")
+
+    def time_derivatives(self, eta, u, u_dot=0.0) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """(eta', eta'', H', H'') of eq. (open-loop elecmech) at eta with input u and rate u_dot (n_e each)."""
+        return self.plant.time_derivatives(np.asarray(eta, dtype=float), u, u_dot)
+
+    def step(self, eta, u, h: float, derivatives: Mapping[int, Sequence[float]] | None = None) -> np.ndarray:
+        """The state after h seconds from eta with the input polynomial of u and `derivatives` ({k: d^k u/dt^k}
+        per input; None or {}: u held). ValueError for a bad h, u, derivative or eta; DomainError if the state
+        leaves the domain; StepFailure on step size underflow or too many substeps. h_next changes only when
+        the step succeeds."""
+        h = float(h)
+        if not (math.isfinite(h) and h > 0):
+            raise ValueError(f"communication step size h = {h} must be finite and > 0")
+        plant = self.plant
+        terms = vector_terms(u, derivatives, plant.n_e)
+        eta = np.array(eta, dtype=float).reshape(-1)
+        if eta.shape != (plant.n,):
+            raise ValueError(f"{plant.name}: state has {eta.size} entries, expected {plant.n}")
+        self.check(eta)
+        if not math.isfinite(sum(float(np.max(np.abs(c))) * _power_over_factorial(h, k) for k, c in terms)):
+            raise ValueError(f"the input polynomial overflows over the step h = {h:g} s")
+        s, rtol = self.scale, self.rtol
+        y = eta / s
+        t, hs = 0.0, min(self.h_next or h, h)
+        n_ok = n_rej = 0
+        h_min = 1e-13 * h
+        while True:
+            remaining = h - t
+            last = hs >= remaining * (1.0 - 1e-9)
+            hh = remaining if last else hs
+            try:
+                y_new, err = self._rodas4(y, terms, t, hh)
+                e = float(np.sqrt(np.mean((err / (rtol * (1.0 + np.maximum(np.abs(y), np.abs(y_new))))) ** 2)))
+            except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+                e = math.inf
+            if not math.isfinite(e):
+                e, factor = math.inf, 0.2
+            else:
+                factor = min(5.0, max(0.2, 0.9 * e ** (-1.0 / _ERROR_ORDER))) if e > 0 else 5.0
+            if e <= 1.0:
+                n_ok += 1
+                y = y_new
+                self.check(y * s)
+                proposal = hh * factor
+                if last:
+                    self.h_next = max(proposal, hs) if hh < hs else proposal
+                    self.n_substeps, self.n_rejected = n_ok, n_rej
+                    return y * s
+                t += hh
+                hs = proposal
+            else:
+                n_rej += 1
+                hs = hh * factor
+                if hs < h_min:
+                    raise StepFailure(f"{plant.name}: step size underflow ({hs:.3g} s) at t + {t:.6g} s in a step "
+                                      f"of {h:.6g} s from state {y * s} with u = {terms[0][1]}")
+            if n_ok + n_rej >= self.max_substeps:
+                raise StepFailure(f"{plant.name}: more than {self.max_substeps} substeps in a step of {h:.6g} s "
+                                  f"(reached t + {t:.6g} s)")
+
+    def _rodas4(self, y: np.ndarray, terms, t: float, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """One RODAS4 step of size h from the scaled state y at t (the step's time): (y_new, error estimate),
+        as PlantStepper._rodas4_dense: (I/(h gamma) - J) K_i = f(Y_i, u(t + alpha_i h)) + sum_j c_ij K_j / h
+        + gamma_i h f_t, with f_t = g u'(t) (Hairer & Wanner, rodas.f)."""
+        import scipy.linalg
+
+        plant, s = self.plant, self.scale
+        eta = y * s
+        jac = plant.jacobian(eta) * s[None, :] / s[:, None]            # J = F hess H, eq. (open-loop elecmech)
+        lu = scipy.linalg.lu_factor(np.eye(plant.n) / (h * _GAMMA) - jac, check_finite=False)
+        held = len(terms) == 1                                         # u constant: no f_t term, one input value
+        ft = None if held else h * (self.g @ vector_input(terms, t, 1)) / s    # h f_t, scaled
+        K = np.zeros((6, plant.n))
+        hi = 1.0 / h
+        Y = y
+        u0 = terms[0][1]
+        for i in range(6):
+            Y = y + _A_ROWS[i] @ K
+            r = plant.f(Y * s, u0 if held else vector_input(terms, t + _STAGE_TIME[i] * h)) / s + hi * (_C_ROWS[i] @ K)
+            if ft is not None:
+                r = r + _STAGE_GAMMA[i] * ft
+            K[i] = scipy.linalg.lu_solve(lu, r, check_finite=False)
+        return Y + K[5], K[5]
+
+
+# RODAS4's a_ij and c_ij as rows of a 6 x 6 strictly lower triangular matrix (GeneralStepper._rodas4)
+_A_ROWS = np.array([list(row) + [0.0] * (6 - len(row)) for row in _A])
+_C_ROWS = np.array([list(row) + [0.0] * (6 - len(row)) for row in _C])
+
+
+def make_stepper(plant: EMPlant, rtol: float = DEFAULT_RTOL) -> PlantStepper | GeneralStepper:
+    """PlantStepper (scalars, the electrical layer in closed form) for a plant with n_m = n_e = 1, else
+    GeneralStepper (arrays)."""
+    if plant.n_m == 1 and plant.n_e == 1:
+        return PlantStepper(plant, rtol)
+    return GeneralStepper(plant, rtol)
 
 
 def simulate_polynomial(plant: EMPlant, eta0, h: float, inputs, rtol: float = 1e-11) -> np.ndarray:

@@ -37,6 +37,7 @@ import sysconfig
 import tempfile
 import zipfile
 from pathlib import Path
+from typing import Sequence
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import tostring
 
@@ -146,22 +147,22 @@ def compile_loader(work: Path) -> Path:
 
 
 # ---- fingerprint -----------------------------------------------------------------------------------
-def _sources(models: dict[str, Path | None]) -> list[Path]:
+def _sources(models: dict[str, Path | None], extra: Sequence[Path] = ()) -> list[Path]:
     files = ([LOADER] + sorted(FMU_SOURCES.glob("*.py")) + sorted(COMPONENTS.rglob("*.py"))
-             + sorted({m for m in models.values() if m is not None}))
+             + sorted({m for m in models.values() if m is not None}) + sorted(set(extra)))
     return [f for f in dict.fromkeys(files) if "__pycache__" not in f.parts]
 
 
-def fingerprint(models: dict[str, Path | None] | None = None) -> str:
-    """sha256 over every input of the build: sources, pythonfmu (code and library), the FMI headers, the
-    compiler, and the Python the FMUs record."""
+def fingerprint(models: dict[str, Path | None] | None = None, extra: Sequence[Path] = ()) -> str:
+    """sha256 over every input of the build: sources (and the `extra` files: device modules, description
+    files), pythonfmu (code and library), the FMI headers, the compiler, and the Python the FMUs record."""
     models = _models() if models is None else models
     try:
         record, compiler = python_record(), _compiler_version(_compiler()[0])
     except BuildError as exc:                       # reported by build(); the fingerprint just differs
         record, compiler = {"missing": str(exc)}, ""
     digest = hashlib.sha256(json.dumps([record, compiler, sorted((k, v.name if v else "") for k, v in models.items())]).encode())
-    inputs = (_sources(models) + sorted(_pythonfmu_dir().glob("*.py")) + [_pythonfmu_library()]
+    inputs = (_sources(models, extra) + sorted(_pythonfmu_dir().glob("*.py")) + [_pythonfmu_library()]
               + sorted(_fmi_headers().glob("fmi2*.h")))
     for f in inputs:
         digest.update(f.name.encode() + b"\0" + f.read_bytes())
@@ -219,9 +220,10 @@ def _copy_package(source: Path, target: Path, skip: tuple[str, ...] = ()) -> Non
         dest.write_text(rewrite_imports(f.read_text(), depth, str(f)))
 
 
-def _bundle(work: Path, package: str, build_fingerprint: str, models: dict[str, Path | None]) -> Path:
+def _bundle(work: Path, package: str, build_fingerprint: str, models: dict[str, Path | None],
+            extra_modules: Sequence[Path] = ()) -> Path:
     """work/resources/<package>: the fmus package, components/ and pythonfmu's Python package as its
-    subpackages, and the model modules of `models` beside them."""
+    subpackages, and the model modules of `models` and `extra_modules` beside them."""
     resources = work / "resources"
     target = resources / package
     target.mkdir(parents=True)
@@ -234,7 +236,7 @@ def _bundle(work: Path, package: str, build_fingerprint: str, models: dict[str, 
     for source in sorted(_pythonfmu_dir().glob("*.py")):
         if source.name not in PYTHONFMU_SKIPPED:
             shutil.copy2(source, target / "pythonfmu" / source.name)
-    for source in sorted({m for m in models.values() if m is not None}):
+    for source in sorted({m for m in models.values() if m is not None} | set(extra_modules)):
         if (target / source.name).exists() or source.stem in IMPORT_ROOTS:
             raise ValueError(f"model module {source} is named like a package of the bundle")
         (target / source.name).write_text(rewrite_imports(source.read_text(), 0, str(source)))
@@ -309,20 +311,23 @@ def repack(src: Path, dest: Path) -> None:
     _write_fmu(dest, files)
 
 
-def build_fmus(models: dict[str, Path | None], dest: Path | str, build_fingerprint: str | None = None) -> dict[str, Path]:
+def build_fmus(models: dict[str, Path | None], dest: Path | str, build_fingerprint: str | None = None,
+               extra_modules: Sequence[Path] = (), resource_files: Sequence[Path] = ()) -> dict[str, Path]:
     """Build one FMU per entry of `models` into `dest`, all with one bundle: model identifier -> None for
     a row of fmus/models.py, or the Python module that defines the slave class of that name (an EMSlave,
-    `from fmus.slave import EMSlave`, like the tests' toy FMUs). Returns model identifier -> FMU path."""
+    `from fmus.slave import EMSlave`, like the tests' toy FMUs). `extra_modules`: more modules of the bundle
+    (beside the model modules, imported by them: a device module); `resource_files`: files copied into every
+    FMU's resources/ under their names (a plant description). Returns model identifier -> FMU path."""
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
-    build_fingerprint = build_fingerprint or fingerprint(models)
+    build_fingerprint = build_fingerprint or fingerprint(models, [*extra_modules, *resource_files])
     record = python_record()
     package = package_name(build_fingerprint)
     paths = {}
     with tempfile.TemporaryDirectory(prefix="emcosim_build_") as tmp:
         work = Path(tmp)
         loader = compile_loader(work).read_bytes()
-        resources = _bundle(work, package, build_fingerprint, models)
+        resources = _bundle(work, package, build_fingerprint, models, extra_modules)
         bundle_files = {f"resources/{f.relative_to(resources).as_posix()}": f.read_bytes()
                         for f in sorted(resources.rglob("*")) if f.is_file() and "__pycache__" not in f.parts}
         # the bundle is imported under a name of its own for the build (its modules import each other
@@ -347,6 +352,8 @@ def build_fmus(models: dict[str, Path | None], dest: Path | str, build_fingerpri
             lines = {**record, "package": package, "script": script, "build": build_fingerprint, "guid": guid}
             files = dict(bundle_files)
             files["modelDescription.xml"] = description
+            for extra in resource_files:
+                files[f"resources/{extra.name}"] = extra.read_bytes()
             files["resources/slavemodule.txt"] = script.encode()
             files[f"resources/{script}.py"] = _script(package, module, identifier, build_fingerprint).encode()
             files[f"resources/{RECORD}"] = (
@@ -359,6 +366,81 @@ def build_fmus(models: dict[str, Path | None], dest: Path | str, build_fingerpri
             paths[identifier] = dest / f"{identifier}.fmu"
             _write_fmu(paths[identifier], files)
     return paths
+
+
+IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9]*")
+BINDING = '''"""Slave classes of the device {name} (generated by fmus.build.build_device from {source}): the plant
+{name} and the controllers {controllers}, bound to the device module {stem} beside this one."""
+from fmus.models import device_slave_classes
+
+from . import {stem} as _device_module
+
+globals().update(device_slave_classes(_device_module, {designs!r}, __name__))
+'''
+
+
+def load_device_module(path: Path):
+    """Import a device module (Python source that defines DEVICE) from its file, under a name of its own."""
+    import importlib.util
+
+    name = f"_emcosim_device_{os.getpid()}_{next(_ALIASES)}_{path.stem}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"{path}: not a Python module")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def build_device(device_module: Path | str, device_name: str | None, designs: Sequence[str] | None,
+                 dest: Path | str, description: Path | str | None = None) -> dict[str, Path]:
+    """Build the FMUs of a device into `dest`: the plant `<name>.fmu` and one `<name>_<Design>.fmu` per design.
+
+    device_module  Python source that defines DEVICE (a components.device.Device, or a function returning one)
+                   or device(designs) (components.codegen's generated modules), optionally INITIAL_STATE and
+                   EXPERIMENT (fmus.models.device_slave_classes); it may import numpy, scipy, the standard
+                   library and components
+    device_name    the name DEVICE must have (the FMUs' identifier stem), or None for any
+    designs        the designs to build (each must be one of the device's), or None for all of them
+    description    the plant description file, copied into every FMU's resources/ (or None)
+
+    Each FMU's bundle carries the device module and a generated module that binds the slave classes
+    (PlantSlave, ControllerSlave with `device`); no sympy is needed at run time. ValueError for a module
+    without DEVICE, a name that is not [A-Za-z][A-Za-z0-9]* or not `device_name`, an unknown design.
+    Returns model identifier -> FMU path."""
+    from .models import device_slave_classes, module_device
+
+    source = Path(device_module).resolve()
+    module = load_device_module(source)
+    device = module_device(module, designs)
+    if not IDENTIFIER.fullmatch(device.name):
+        raise ValueError(f"{source}: device name {device.name!r} is not an identifier [A-Za-z][A-Za-z0-9]*")
+    if device_name is not None and device.name != device_name:
+        raise ValueError(f"{source}: DEVICE is named {device.name!r}, not {device_name!r}")
+    chosen = list(device.designs) if designs is None else list(designs)
+    classes = device_slave_classes(module, chosen)             # checks designs and the initial state at once
+    extras = [Path(description).resolve()] if description is not None else []
+    with tempfile.TemporaryDirectory(prefix="emcosim_device_") as tmp:
+        binding = Path(tmp) / f"emcosim_device_{device.name}.py"
+        binding.write_text(BINDING.format(name=device.name, source=source.name, stem=source.stem, designs=chosen,
+                                          controllers=", ".join(c for c in classes if c != device.name) or "none"))
+        return build_fmus({identifier: binding for identifier in classes}, dest,
+                          extra_modules=[source], resource_files=extras)
+
+
+def build_description(description: Path | str, dest: Path | str, designs: Sequence[str] | None = None) -> dict[str, Path]:
+    """The FMUs of a plant description file (TOML, issue 25): components.codegen writes its model module
+    (`<stem>_model.py`, in a temporary folder), then `build_device` builds the plant and a
+    controller per design of `designs` (None: those the generated device() gives), with the description
+    file in resources/. A DescriptionError (components.description) names a wrong entry; nothing is built."""
+    description = Path(description).resolve()
+    loader = importlib.import_module("components.description")
+    codegen = importlib.import_module("components.codegen")
+    desc = loader.load(description)
+    with tempfile.TemporaryDirectory(prefix="emcosim_description_") as tmp:
+        module = Path(tmp) / f"{description.stem.lower()}_model.py"
+        module.write_text(codegen.module_source(desc, description.name))
+        return build_device(module, desc.name, designs, dest, description=description)
 
 
 def up_to_date(dest: Path | str | None = None, current: str | None = None) -> bool:

@@ -1,9 +1,10 @@
 """Adapter: a static controller of components/ as an FMI 2.0 slave (Co-Simulation and Model Exchange: no states).
 
-Variables: the plant's physical parameters (the controller's model of the plant, same names as in the
-plant FMU) and the gains of components.catalog.GAINS (parameters); the plant outputs q, p, x_e and,
-for tracking, the reference jet q_star, q_star_dot, q_star_ddot, q_star_dddot (inputs); u (output).
-The controller is built by components.catalog.controller. u depends on the inputs only
+Variables (from the class's components.device.Device and its design): the plant's physical parameters
+(the controller's model of the plant, same names as in the plant FMU) and the design's gains
+(parameters); the plant outputs q, p, x_e (n_m + n_m + n_e inputs under the device's names) and, for
+tracking, the reference jet (Device.jet_names: q_star, q_star_dot, q_star_ddot, q_star_dddot for the
+paper's plants); u (n_e outputs). The controller is built by Device.controller. u depends on the inputs only
 (direct feedthrough, no state): it is computed when read, so a master reads it right after setting the
 inputs, without a one-step delay. doStep only checks that u could be computed.
 FMI 2.0 derivatives: the exact Jacobian of u with respect to the inputs (fmi2GetDirectionalDerivative)
@@ -15,24 +16,23 @@ components.controller.Controller.u_derivative (complex step of the law).
 from __future__ import annotations
 
 import math
-from types import ModuleType
 from typing import ClassVar
 
 import numpy as np
 
-from components import catalog, certificates
+from components import certificates
 from components.controller import Controller
+from components.device import Device
 from components.ph_plant import Jet
 from components.references import JET_VARIABLES as JET
 
 from .pythonfmu_workarounds import Fmi2Status
 from .slave import EMSlave
 
-STATE_NAMES = ("q", "p", "x_e")
-
 
 class ControllerSlave(EMSlave):
-    plant_module: ClassVar[ModuleType]                          # components.mems or components.maglev
+    device: ClassVar[Device]                                    # the plant kind (components.device)
+    design: ClassVar[str]                                       # one of device.designs: "Theorem2", ...
     input_start: ClassVar[tuple[float, ...]]                    # q, p, x_e (and the jet, if tracking)
     # FMI 2.0 derivatives (hooks at the end of the class)
     can_interpolate_inputs = True                               # accepts input derivatives (for du/dt)
@@ -41,30 +41,46 @@ class ControllerSlave(EMSlave):
     provides_directional_derivative = True
 
     def declare(self) -> None:
-        module = self.plant_module
-        self.tracking = catalog.TRACKING[self.model_identifier]
-        self.gains = catalog.GAINS[self.model_identifier]
-        for p in module.PARAMETERS.values():
+        device = self.device
+        design = device.designs[self.design]
+        self.tracking = design.tracking
+        self.gains = design.gains
+        self.scalar = device.n_m == 1 and device.n_e == 1       # one input u: the law in scalars where it can
+        for p in device.parameters.values():
             self.parameter(p.name, p.default, p.unit, f"controller's model of the plant: {p.description}")
         for p in self.gains.values():
             self.parameter(p.name, p.default, p.unit, p.description)
         self.parameter("strict", 0, None, "1: refuse to initialize when the parameters violate a condition of the "
                        "controller's proposition or theorem (components.certificates.design_checks); "
                        "0: log a warning and run", integer=True)
-        inputs = [(n,) + module.STATES[n] for n in STATE_NAMES] + (list(JET) if self.tracking else [])
-        for (name, unit, description), start in zip(inputs, self.input_start):
+        inputs = [(v.name, v.unit, v.description) for v in device.states]
+        if self.tracking:
+            jet = device.jet_names()
+            # the paper's plants keep the Reference FMU's descriptions (components.references)
+            same = [(n, u) for n, u, _ in jet] == [(n, u) for n, u, _ in JET]
+            inputs += list(JET) if same else jet
+        for (name, unit, description), start in zip(inputs, self.input_start, strict=True):
             self.input(name, start, unit, description)
         self.input_names = [i[0] for i in inputs]
-        self.output("u", module.INPUT[1], module.INPUT[2], self.u_value, self.input_names,
-                    self.input_names + list(module.PARAMETERS) + list(self.gains))
+        self.n = len(device.states)
+        self.output_names = [v.name for v in device.u]
+        self.output_index = {n: i for i, n in enumerate(self.output_names)}
+        initial = self.input_names + list(device.parameters) + list(self.gains)
+        if self.scalar:
+            v = device.u[0]
+            self.output(v.name, v.unit, v.description, self.u_value, self.input_names, initial)
+        else:
+            for i, v in enumerate(device.u):
+                self.output(v.name, v.unit, v.description, (lambda i=i: self.u_vector()[i]), self.input_names, initial)
         self.controller: Controller | None = None
         self._u: float | None = None
+        self._u_vector: tuple[float, ...] | None = None
         self._u_error = ""
 
     def make_controller(self) -> Controller:
         """The components controller of the current parameter values (a ValueError names the parameter)."""
-        names = list(self.plant_module.PARAMETERS) + list(self.gains)
-        return catalog.controller(self.model_identifier, {n: self.values[n] for n in names})
+        names = list(self.device.parameters) + list(self.gains)
+        return self.device.controller(self.design, {n: self.values[n] for n in names})
 
     def initialize(self) -> None:
         controller = self.make_controller()
@@ -80,13 +96,15 @@ class ControllerSlave(EMSlave):
             if strict:
                 raise ValueError(message + " (strict = 1)")
             self.log(message + "; running anyway (strict = 0)", Fmi2Status.warning)
-        self.controller, self._u = controller, None
+        self.controller, self._u, self._u_vector = controller, None, None
 
     def input_jet(self, controller: Controller) -> Jet | None:
         """The reference jet at the inputs (tracking controllers), or None if it is not feasible."""
         if not self.tracking:
             return None
-        jet = Jet(*(np.array([self.values[name]]) for name, _, _ in JET))
+        m = self.device.n_m
+        values = np.array([self.values[name] for name in self.input_names[self.n:]])
+        jet = Jet(*values.reshape(4, m))
         try:
             controller.target(jet)
         except ValueError:
@@ -96,6 +114,7 @@ class ControllerSlave(EMSlave):
     # ---- the output -----------------------------------------------------------------------------
     def inputs_changed(self) -> None:
         self._u = None
+        self._u_vector = None
 
     def u_value(self) -> float:
         """u at the current inputs, computed once per input change (before initialization, when parameters
@@ -121,27 +140,59 @@ class ControllerSlave(EMSlave):
             if controller.scalars is not None:                # one-DOF plant: the law in scalars
                 u = float(controller.u_scalar(x[0], x[1], x[2], x[3:] if self.tracking else None))
             else:
-                jet = Jet(*(np.array([xi]) for xi in x[3:])) if self.tracking else None
-                u = float(controller.u(np.array(x[:3]), jet)[0])
+                u = float(self.law(controller, x)[0])
         except Exception as exc:                                      # noqa: BLE001 - reported, never raised
             return math.nan, f"{self.model_identifier}: u cannot be computed for the inputs {self.input_values()}: {exc}"
         if not math.isfinite(u):
             return math.nan, f"{self.model_identifier}: u = {u} for the inputs {self.input_values()}"
         return u, ""
 
+    def law(self, controller: Controller, x: list[float]) -> np.ndarray:
+        """u (n_e,) of the matrix law at the inputs x (the states, then the jet if tracking)."""
+        n, m = self.n, self.device.n_m
+        jet = Jet(*np.array(x[n:]).reshape(4, m)) if self.tracking else None
+        return np.asarray(controller.u(np.array(x[:n]), jet), dtype=float)
+
+    def u_vector(self) -> tuple[float, ...]:
+        """u (n_e entries) at the current inputs, computed once per input change (before initialization, at
+        every call); any entry nan when it cannot be computed (the reason is logged)."""
+        if self._u_vector is None or self.controller is None:
+            self._u_vector, self._u_error = self.compute_u_vector()
+            if self._u_error:
+                self.log_error(self._u_error)
+        return self._u_vector
+
+    def compute_u_vector(self) -> tuple[tuple[float, ...], str]:
+        """(u, "") or (nan..., reason): any n_e."""
+        n_e = len(self.output_names)
+        x = [self.values[name] for name in self.input_names]
+        for name, value in zip(self.input_names, x):
+            if not math.isfinite(value):
+                return (math.nan,) * n_e, f"{self.model_identifier}: input {name} = {value} is not finite"
+        try:
+            controller = self.controller if self.controller is not None else self.make_controller()
+            u = self.law(controller, x)
+        except Exception as exc:                                      # noqa: BLE001 - reported, never raised
+            return (math.nan,) * n_e, (f"{self.model_identifier}: u cannot be computed for the inputs "
+                                       f"{self.input_values()}: {exc}")
+        if not np.all(np.isfinite(u)):
+            return (math.nan,) * n_e, f"{self.model_identifier}: u = {u.tolist()} for the inputs {self.input_values()}"
+        return tuple(float(v) for v in u), ""
+
     def input_values(self) -> dict:
         return {name: self.values[name] for name in self.input_names}
 
     def step(self, t: float, h: float) -> bool:
-        u = self.u_value()
+        u = self.u_value() if self.scalar else sum(self.u_vector())
         if math.isfinite(u):
             return True
         self.log_error(f"{self._u_error} (doStep at t = {t:.9g} s)")
         return False
 
     # ---- FMI 2.0 derivatives (contract: derivatives.DerivativeFunctions) --------------------------------
-    def u_derivative(self, directions: list[float]) -> float:
-        """sum_j du/d(input_j) directions_j at the current inputs (ValueError with the reason)."""
+    def u_derivative(self, directions: list[float]):
+        """sum_j du/d(input_j) directions_j at the current inputs (ValueError with the reason): a number for
+        a one-DOF plant, else an array of shape (n_e,) (components.controller.Controller.u_derivative)."""
         values = self.values
         x = [values[name] for name in self.input_names]
         if not math.isfinite(sum(x)):                          # some input is nan or inf (or the sum overflows)
@@ -149,17 +200,22 @@ class ControllerSlave(EMSlave):
                 if not math.isfinite(value):
                     raise ValueError(f"input {name} = {value} is not finite")
         controller = self.controller if self.controller is not None else self.make_controller()
-        return float(controller.u_derivative(x, directions))
+        d = controller.u_derivative(x, directions)
+        return float(d) if self.scalar and controller.scalars is not None else np.asarray(d, dtype=float).reshape(-1)
 
     def output_derivative(self, name: str, order: int) -> float:
         """du/dt = (du/d inputs) (d inputs/dt), the input rates as set by the master (0 where none)."""
         rates = self.input_derivatives
-        return self.u_derivative([rates[n].get(1, 0.0) if n in rates else 0.0 for n in self.input_names])
+        d = self.u_derivative([rates[n].get(1, 0.0) if n in rates else 0.0 for n in self.input_names])
+        return d if isinstance(d, float) else float(d[self.output_index[name]])
 
     def directional_derivative(self, unknowns: list[str], knowns: list[str], seeds: list[float]) -> list[float]:
-        """sum_j du/d(knowns_j) seeds_j for each unknown (u is the only output)."""
+        """sum_j du_i/d(knowns_j) seeds_j for each unknown u_i."""
         index = {n: i for i, n in enumerate(self.input_names)}
         v = [0.0] * len(self.input_names)
         for name, seed in zip(knowns, seeds):
             v[index[name]] += seed
-        return [self.u_derivative(v)] * len(unknowns)
+        d = self.u_derivative(v)
+        if isinstance(d, float):
+            return [d] * len(unknowns)
+        return [float(d[self.output_index[name]]) for name in unknowns]

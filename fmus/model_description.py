@@ -13,7 +13,7 @@ from typing import Any
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 from .pythonfmu_workarounds import PYTHONFMU_VERSION
-from .variables import UNITS, Variable
+from .variables import Variable, base_units
 
 LOG_CATEGORIES = {
     "logStatusWarning": "Log messages with fmi2Warning status.",
@@ -65,7 +65,7 @@ def model_description(slave: Any, build: str, options: dict[str, bool]) -> Eleme
     units = SubElement(root, "UnitDefinitions")
     for name in sorted({v.unit for v in variables if v.unit is not None}):
         unit = SubElement(units, "Unit", {"name": name})
-        SubElement(unit, "BaseUnit", {k: str(e) for k, e in UNITS[name].items()})
+        SubElement(unit, "BaseUnit", {k: str(e) for k, e in base_units(name).items()})
     categories = SubElement(root, "LogCategories")
     for name, description in LOG_CATEGORIES.items():
         SubElement(categories, "Category", {"name": name, "description": description})

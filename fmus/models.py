@@ -1,6 +1,8 @@
-"""The seven emcosim FMUs, one row each: which adapter, which components/ model, what the FMU shows on its
-own (its start values and DefaultExperiment). build.py builds one FMU per row; `slave_class` makes the
-row's slave class, which the FMU's generated script binds to the model identifier.
+"""The seven emcosim FMUs, one row each: which adapter, which device (components.catalog.DEVICES) and design,
+what the FMU shows on its own (its start values and DefaultExperiment). build.py builds one FMU per row;
+`slave_class` makes the row's slave class, which the FMU's generated script binds to the model identifier.
+Any other device (a plant description's generated module, a test's): `device_slave_classes`, the same
+adapters with start values of its own (build.py, `build_device`).
 
 Default experiments (docs/fmus.md, "Run with fmpy"):
 - MEMS: the open-loop response to a constant 25 V from the paper's initial state (q, p, x_e) = (15e-6 m,
@@ -15,9 +17,14 @@ Default experiments (docs/fmus.md, "Run with fmpy"):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from types import ModuleType
+from typing import Any, Sequence
 
-from components import maglev, mems
+import numpy as np
+
+from components import maglev
+from components.catalog import DEVICES
+from components.device import Device
 
 from .controller import ControllerSlave
 from .plant import PlantSlave
@@ -39,22 +46,24 @@ class Model:
 MODELS: dict[str, Model] = {
     "MEMS": Model(PlantSlave, "MEMS optical switch (paper Section 7.1): input voltage u, outputs q, p, x_e and "
                   "the energy H", (0.0, 9e-4, 1e-6),
-                  {"plant_module": mems, "initial_state": (15e-6, 0.0, 0.0), "input_start": 25.0}),
+                  {"device": DEVICES["MEMS"], "initial_state": (15e-6, 0.0, 0.0), "input_start": 25.0}),
     "Maglev": Model(PlantSlave, "magnetic levitation system (paper Section 7.2): input voltage u, outputs q, p, "
                     "x_e and the energy H", (0.0, 0.5, 1e-3),
-                    {"plant_module": maglev, "initial_state": MAGLEV_EQUILIBRIUM, "input_start": 0.0}),
+                    {"device": DEVICES["Maglev"], "initial_state": MAGLEV_EQUILIBRIUM, "input_start": 0.0}),
     "MEMS_Proposition1": Model(ControllerSlave, "Proposition 1 (eq. c1) for the MEMS optical switch: u from "
                                "(q, p, x_e)", (0.0, 1e-3, 1e-4),
-                               {"plant_module": mems, "input_start": (15e-6, 0.0, 0.0)}),
+                               {"device": DEVICES["MEMS"], "design": "Proposition1", "input_start": (15e-6, 0.0, 0.0)}),
     "MEMS_Theorem2": Model(ControllerSlave, "Theorem 2 (eq. u1-track) for the MEMS optical switch: u from "
                            "(q, p, x_e) and the reference jet", (0.0, 1e-3, 1e-4),
-                           {"plant_module": mems, "input_start": (15e-6, 0.0, 0.0, 3e-5, 0.0, 0.0, 0.0)}),
+                           {"device": DEVICES["MEMS"], "design": "Theorem2",
+                             "input_start": (15e-6, 0.0, 0.0, 3e-5, 0.0, 0.0, 0.0)}),
     "Maglev_Proposition2": Model(ControllerSlave, "Proposition 2 (eq. u2) for the magnetic levitation system: u "
                                  "from (q, p, x_e)", (0.0, 0.1, 1e-2),
-                                 {"plant_module": maglev, "input_start": MAGLEV_EQUILIBRIUM}),
+                                 {"device": DEVICES["Maglev"], "design": "Proposition2", "input_start": MAGLEV_EQUILIBRIUM}),
     "Maglev_Theorem3": Model(ControllerSlave, "Theorem 3 (eq. tracker2) for the magnetic levitation system: u "
                              "from (q, p, x_e) and the reference jet", (0.0, 0.1, 1e-2),
-                             {"plant_module": maglev, "input_start": MAGLEV_EQUILIBRIUM + (0.0025, 0.0, 0.0, 0.0)}),
+                             {"device": DEVICES["Maglev"], "design": "Theorem3",
+                               "input_start": MAGLEV_EQUILIBRIUM + (0.0025, 0.0, 0.0, 0.0)}),
     "Reference": Model(ReferenceSlave, "reference generator: constant, sinusoid or smooth transition; outputs the "
                        "jet q*, q*', q*'', q*'''", (0.0, 0.5, 1e-3)),
 }
@@ -66,3 +75,80 @@ def slave_class(identifier: str) -> type:
     return type(identifier, (model.adapter,), {"model_identifier": identifier, "summary": model.summary,
                                                "experiment": model.experiment, **model.attributes,
                                                "__module__": __name__})
+
+
+# the paper's equation of each design's control law
+LAWS = {"Proposition1": "eq. c1", "Proposition2": "eq. u2", "Theorem2": "eq. u1-track", "Theorem3": "eq. tracker2"}
+DEFAULT_EXPERIMENT = (0.0, 1.0, 1e-3)
+
+
+def module_device(module: ModuleType, designs: Sequence[str] | None = None) -> Device:
+    """The Device of a device module: its `DEVICE` (a Device, or a function returning one) or its function
+    `device(designs)` (a plant description's generated module, components.codegen: the designs asked for)."""
+    device = getattr(module, "DEVICE", None)
+    if device is not None and not isinstance(device, Device) and callable(device):
+        device = device()
+    if device is None and callable(getattr(module, "device", None)):
+        device = module.device(None if designs is None else list(designs))
+    if not isinstance(device, Device):
+        raise ValueError(f"device module {module.__name__} defines neither DEVICE (a components.device.Device or a "
+                         "function returning one) nor device(designs)")
+    return device
+
+
+def default_initial_state(device: Device) -> tuple[float, ...]:
+    """A plant FMU's start values of q_0, p_0, x_e_0 when the device module gives none (INITIAL_STATE): the
+    equilibrium eta_d = (q_d, 0, x_e_d) (EMPlant.equilibrium) at the default q_d of the first regulation
+    design, else eta = 0; ValueError if that is not admissible (check_state)."""
+    plant = device.plant()
+    for design in device.designs.values():
+        names = ["q_d"] if "q_d" in design.gains else [f"q_d_{i + 1}" for i in range(device.n_m)]
+        if not design.tracking and all(n in design.gains for n in names):
+            try:
+                return tuple(float(v) for v in plant.equilibrium(np.array([design.gains[n].default for n in names])))
+            except (ValueError, ArithmeticError, NotImplementedError):
+                continue
+    eta = np.zeros(len(device.states))
+    try:
+        plant.check_state(eta)
+    except ValueError as exc:
+        raise ValueError(f"{device.name}: eta = 0 is not admissible ({exc}) and no regulation design gives an "
+                         "equilibrium: give the device module an INITIAL_STATE") from None
+    return tuple(eta.tolist())
+
+
+def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = None,
+                         module_name: str = __name__) -> dict[str, type]:
+    """The slave classes of a device module's FMUs, by model identifier: the plant <name> (PlantSlave) and one
+    controller <name>_<design> (ControllerSlave) per design (default: every design of the device).
+
+    The module defines DEVICE or device(designs) (module_device) and may define INITIAL_STATE (q_0, p_0, x_e_0; default:
+    default_initial_state) and EXPERIMENT ((start, stop, step) of every FMU's DefaultExperiment; default
+    DEFAULT_EXPERIMENT). The plant's inputs start at 0; a controller's inputs start at the plant's initial
+    state and, tracking, the jet of the constant reference q* = q_0."""
+    device = module_device(module, designs)
+    chosen = list(device.designs) if designs is None else list(designs)
+    unknown = [d for d in chosen if d not in device.designs]
+    if unknown:
+        raise ValueError(f"{device.name}: no design(s) {unknown}; the designs of the device: {sorted(device.designs)}")
+    initial = tuple(float(v) for v in getattr(module, "INITIAL_STATE", None) or default_initial_state(device))
+    if len(initial) != len(device.states):
+        raise ValueError(f"{device.name}: INITIAL_STATE has {len(initial)} entries, expected {len(device.states)} "
+                         f"({', '.join(v.name for v in device.states)})")
+    experiment = tuple(float(v) for v in getattr(module, "EXPERIMENT", DEFAULT_EXPERIMENT))
+    u_names = ", ".join(v.name for v in device.u)
+    classes = {device.name: type(device.name, (PlantSlave,), {
+        "model_identifier": device.name, "experiment": experiment, "device": device, "initial_state": initial,
+        "input_start": 0.0 if device.n_e == 1 else (0.0,) * device.n_e, "__module__": module_name,
+        "summary": f"{device.description}: inputs {u_names}, outputs the states and the energy H"})}
+    q0 = initial[:device.n_m]
+    for name in chosen:
+        design = device.designs[name]
+        identifier = device.controller_identifier(name)
+        jet = (q0 + (0.0,) * (3 * device.n_m)) if design.tracking else ()
+        classes[identifier] = type(identifier, (ControllerSlave,), {
+            "model_identifier": identifier, "experiment": experiment, "device": device, "design": name,
+            "input_start": initial + jet, "__module__": module_name,
+            "summary": f"{name} ({LAWS[name]}) for {device.description}: {u_names} from the states"
+                       + (" and the reference jet" if design.tracking else "")})
+    return classes

@@ -3,10 +3,13 @@ they use. Nothing here knows physics: the adapters declare their variables with 
 descriptions of components/."""
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Callable
 
-# SI base-unit exponents (kg, m, s, A, rad) of every unit the FMUs use (FMI 2.0 UnitDefinitions / BaseUnit)
+# SI base-unit exponents (kg, m, s, A, rad) of the units the paper's FMUs use (FMI 2.0 UnitDefinitions /
+# BaseUnit). Any other unit string is parsed (`base_units`); the tests check that the parser gives every
+# entry of this table.
 UNITS: dict[str, dict[str, int]] = {
     "1": {},
     "s": {"s": 1},
@@ -35,8 +38,66 @@ UNITS: dict[str, dict[str, int]] = {
     "rad/s": {"rad": 1, "s": -1},
 }
 
+# the exponents of FMI 2.0's BaseUnit, in the order the attributes are written
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+# the symbols a unit string may use: the SI base units, rad, the SI derived units (as base-unit exponents), "1"
+SYMBOLS: dict[str, dict[str, int]] = {
+    **{b: {b: 1} for b in BASE_UNITS},
+    "1": {},
+    "N": {"kg": 1, "m": 1, "s": -2},                     # newton
+    "J": {"kg": 1, "m": 2, "s": -2},                     # joule
+    "W": {"kg": 1, "m": 2, "s": -3},                     # watt
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},            # volt
+    "C": {"s": 1, "A": 1},                               # coulomb
+    "F": {"kg": -1, "m": -2, "s": 4, "A": 2},            # farad
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2},            # henry
+    "Wb": {"kg": 1, "m": 2, "s": -2, "A": -1},           # weber
+    "T": {"kg": 1, "s": -2, "A": -1},                    # tesla
+    "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},          # ohm
+    "S": {"kg": -1, "m": -2, "s": 3, "A": 2},            # siemens
+    "Pa": {"kg": 1, "m": -1, "s": -2},                   # pascal
+    "Hz": {"s": -1},                                     # hertz
+}
+_FACTOR = re.compile(r"([A-Za-z]+|1)(-?[0-9]+)?")
+
+
+def base_units(unit: str) -> dict[str, int]:
+    """The FMI 2.0 BaseUnit exponents of a unit string: UNITS' entry (its order of attributes, as the paper's
+    FMUs have always written them), else `parse_unit`'s."""
+    known = UNITS.get(unit) if isinstance(unit, str) else None
+    return dict(known) if known is not None else parse_unit(unit)
+
+
+def parse_unit(unit: str) -> dict[str, int]:
+    """The FMI 2.0 BaseUnit exponents of a unit string (in the order of BASE_UNITS, zeros left out).
+
+    A unit string is factors joined by "." (multiply) or "/" (divide by the next factor only: "Wb2/J/s" is
+    Wb^2 J^-1 s^-1), each a symbol of SYMBOLS with an optional integer exponent ("m/s2", "N.s/m", "kg.m/s",
+    "1/Ohm"). No prefixes (write "m", not "mm"). ValueError naming the unit and the factor otherwise."""
+    if not isinstance(unit, str) or not unit:
+        raise ValueError(f"unit {unit!r} is not a unit string")
+    total = dict.fromkeys(BASE_UNITS, 0)
+    for sign, factor in re.findall(r"(^|[./])([^./]*)", unit):
+        match = _FACTOR.fullmatch(factor)
+        if match is None or match.group(1) not in SYMBOLS or (match.group(1) == "1" and match.group(2)):
+            raise ValueError(f"unit {unit!r}: factor {factor!r} is not a symbol of {sorted(SYMBOLS)} with an "
+                             "optional integer exponent (factors joined by '.' or '/')")
+        power = int(match.group(2) or 1) * (-1 if sign == "/" else 1)
+        for base, exponent in SYMBOLS[match.group(1)].items():
+            total[base] += power * exponent
+    return {b: e for b, e in total.items() if e}
+
+
+class _RateUnits(dict):
+    """unit -> the unit of its time derivative: the paper's FMUs' names where they have one (kg.m/s -> N),
+    else unit + "/s" (der(q) of any state q)."""
+
+    def __missing__(self, unit: str) -> str:
+        return "1/s" if unit == "1" else f"{unit}/s"
+
+
 # the unit of the time derivative of a quantity in `unit` (der(q) of a state q)
-RATE_UNITS = {"m": "m/s", "kg.m/s": "N", "C": "C/s", "Wb": "Wb/s", "J": "J/s"}
+RATE_UNITS: dict[str, str] = _RateUnits({"m": "m/s", "kg.m/s": "N", "C": "C/s", "Wb": "Wb/s", "J": "J/s"})
 
 
 @dataclass
@@ -65,7 +126,10 @@ class Variable:
 
     def check(self, model: str) -> None:
         """A ValueError for a declaration the modelDescription cannot express."""
-        if self.unit is not None and self.unit not in UNITS:
-            raise ValueError(f"{model}: unit {self.unit!r} of {self.name} has no UnitDefinition")
+        if self.unit is not None:
+            try:
+                base_units(self.unit)
+            except ValueError as exc:
+                raise ValueError(f"{model}: {self.name}: {exc}") from None
         if self.integer and self.causality != "parameter":
             raise ValueError(f"{model}: {self.name}: only parameters may be Integer")

@@ -99,7 +99,7 @@ def cmd_check(args) -> int:
 
 
 def cmd_build(args) -> int:
-    from fmus.build import BuildError, build_device
+    from fmus.build import BuildError
 
     from . import registry
 
@@ -107,15 +107,34 @@ def cmd_build(args) -> int:
         desc, report, device = registry.load(args.file)
     except ValueError as exc:
         raise _describe(exc) from None
-    for line in report.not_applicable():
+    for line in report.not_applicable():                # "<design>: <why>"
         print(f"not built   {device.name}_{line}")
     try:
-        paths = build_device(Path(args.file), device, Path(args.out))
-    except BuildError as exc:
+        paths = build_fmus_of(desc, list(device.designs), Path(args.out))
+    except (BuildError, ValueError) as exc:
         raise _describe(exc) from None
-    for identifier, path in paths.items():
+    for path in paths.values():
         print(f"built       {path}")
     return 0
+
+
+def build_fmus_of(desc, designs: list[str], out: Path) -> dict[str, Path]:
+    """The plant FMU, the controller FMUs of `designs` and the Reference FMU of a description, into `out`
+    (fmus.build.build_description: the generated model module, no sympy at run time); every FMU carries the
+    description as registry.DESCRIPTION_RESOURCE, by which `certify` knows the device."""
+    import shutil
+    import tempfile
+
+    from fmus.build import build_description, build_fmus
+
+    from .registry import DESCRIPTION_RESOURCE
+
+    with tempfile.TemporaryDirectory(prefix="emcosim_plant_") as tmp:
+        copy = Path(tmp) / Path(DESCRIPTION_RESOURCE).name
+        shutil.copyfile(desc.source, copy)
+        paths = build_description(copy, out, designs)
+    paths.update(build_fmus({"Reference": None}, out))
+    return paths
 
 
 def cmd_scenario(args) -> int:

@@ -1,0 +1,120 @@
+"""The example devices of examples/ (not in the paper), end to end as a user takes them: the description is
+checked, the FMUs are built by `emcosim plant build`, pass `fmpy validate`, and the written scenario runs in
+closed loop to its set-point.
+
+Independent truths: the matching identity (closed loop = target pH system, eqs. closedloop, Eq:R-J) of
+every design built, at random states, with grad H_d by the complex step of H_d (written independently of
+the control law); the co-simulation against a monolithic scipy Radau solve of the same equations
+(components.monolithic) from the scenario's initial state; the set-point the paper's Proposition promises.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy.validation import validate_fmu
+
+from components import catalog, differentiation, monolithic
+from emcosim.cli import main
+from emcosim.devices import registry
+from emcosim.devices.scenario import StackedReference, reference_components
+from emcosim.engine.master import Simulation
+from emcosim.engine.ssd import read_scenario
+from tests.helpers import random_state_near
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = {
+    "Solenoid": (ROOT / "examples" / "solenoid" / "solenoid.toml", {"Proposition1", "Theorem2"}),
+    "LevitatedBar": (ROOT / "examples" / "levitated_bar" / "levitated_bar.toml", {"Proposition2", "Theorem3"}),
+}
+SCENARIOS = {"Solenoid": ROOT / "examples" / "solenoid" / "scenario",
+             "LevitatedBar": ROOT / "examples" / "levitated_bar" / "scenario"}
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> dict[str, Path]:
+    """`emcosim plant build FILE --out DIR` of each example: device name -> the FMU folder."""
+    out = {}
+    for name, (path, _) in EXAMPLES.items():
+        folder = tmp_path_factory.mktemp(name)
+        assert main(["plant", "build", str(path), "--out", str(folder)]) == 0
+        out[name] = folder
+    return out
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_the_designs_that_apply_are_built_and_valid(name, built):
+    _, designs = EXAMPLES[name]
+    fmus = {p.stem for p in built[name].glob("*.fmu")}
+    assert fmus == {name, "Reference"} | {f"{name}_{d}" for d in designs}
+    for fmu in sorted(built[name].glob("*.fmu")):
+        assert validate_fmu(str(fmu)) == [], fmu.name
+
+
+@pytest.mark.parametrize("name, design", [(n, d) for n, (_, ds) in EXAMPLES.items() for d in sorted(ds)])
+def test_matching_identity_of_every_design(name, design):
+    """f(eta, u(eta, t)) = F_d grad H_d(eta, t) at 200 random states (and reference times)."""
+    _, _, device = registry.load(EXAMPLES[name][0])
+    ctrl = device.controller(design)
+    rng = np.random.default_rng(7)
+    reference = None
+    if ctrl.tracking:
+        specs = [{"kind": "sinusoid", "offset": float(x), "amplitude": 0.1 * abs(float(x)) + 1e-4, "omega": 5.0}
+                 for x in ctrl.plant.split(device.controller("Proposition1" if "Proposition1" in device.designs
+                                                             else "Proposition2").target())[0]]
+        reference = StackedReference(reference_components(device.q, specs, name))
+    F_d = ctrl.F_d()
+    worst = 0.0
+    for _ in range(200):
+        jet = None if reference is None else reference.jet(rng.uniform(0.0, 1.0))
+        eta = random_state_near(ctrl.target(jet), rng, ctrl.plant)
+        lhs = ctrl.plant.f(eta, ctrl.u(eta, jet))
+        gH = differentiation.gradient(lambda e: ctrl.H_d(e, jet), eta, scale=np.abs(eta) + 1e-30)
+        rhs = F_d @ gH
+        size = np.abs(F_d) @ np.abs(gH)
+        worst = max(worst, float(np.max(np.abs(lhs - rhs) / size)))
+    assert worst < 1e-9, worst
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_the_example_scenario_agrees_with_the_monolithic_loop(name, built):
+    """The committed scenario of the example, co-simulated with the FMUs just built, against scipy's Radau
+    on the same equations from the same initial state; it ends at its set-point."""
+    registry.register_description(EXAMPLES[name][0])
+    s = read_scenario(SCENARIOS[name], fmu_dir=str(built[name]))
+    device = catalog.DEVICES[name]
+    controller_model = next(Path(c.source).stem for c in s.components if c.name == "controller")
+    values = {k: p.value for k, p in next(c for c in s.components if c.name == "controller").parameters.items()}
+    ctrl = catalog.controller(controller_model, values)
+    plant_values = next(c for c in s.components if c.name == "plant").parameters
+    eta0 = np.array([plant_values[f"{v.name}_0"].value for v in device.states])
+    states = [f"plant.{v.name}" for v in device.states]
+    with Simulation(s) as sim:
+        r = sim.run(record=states)
+    truth = monolithic.simulate(ctrl, eta0, float(s.stop_time), n_samples=2001, rtol=1e-10)
+    q_d = ctrl.plant.split(ctrl.target())[0]
+    for i, v in enumerate(device.q):
+        q_truth = np.interp(r.time, truth.t, np.asarray(truth.eta)[:, i])
+        span = max(float(np.ptp(q_truth)), abs(float(q_d[i])))
+        assert np.max(np.abs(r[f"plant.{v.name}"] - q_truth)) < 1e-3 * span, v.name
+        assert abs(float(r[f"plant.{v.name}"][-1]) - float(q_d[i])) < 0.02 * span, v.name
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_the_committed_scenario_is_what_plant_scenario_writes(name, tmp_path):
+    """examples/<device>/scenario is the output of the command in examples/<device>/README.md."""
+    folder = SCENARIOS[name]
+    command = (folder.parent / "scenario.args").read_text().split()
+    out = tmp_path / "scenario"
+    assert main(["plant", "scenario", str(EXAMPLES[name][0]), *command, "--out", str(out),
+                 "--fmu-dir", str(ROOT / "build" / name)]) == 0
+    def text(path: Path) -> str:                 # the FMUs' folder is named relative to where the scenario is
+        return re.sub(r'source="[^"]*/([A-Za-z0-9_]+\.fmu)"', r'source="\1"', path.read_text())
+
+    written = {p.name: text(p) for p in out.iterdir()}
+    committed = {p.name: text(p) for p in folder.iterdir()}
+    assert written.keys() == committed.keys()
+    for k in written:
+        assert written[k] == committed[k], k

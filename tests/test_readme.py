@@ -64,7 +64,8 @@ def test_every_readme_command_runs_in_a_fresh_venv(tmp_path):
         print(f"{time.monotonic() - tic:6.1f} s  {command}")                # pytest -s shows the costs
     for name in ["results/claims.md", "results/fig3_maglev_tracking.png", "r.png", "r.csv", "mems_tracking_Dd-0.4.csv",
                  "loop.fmu", "loop.csv", "mems.csv", "jet.csv", "sweep_maglev_tracking_D0_R0.82/sweep.csv", "me.csv",
-                 "mems_me.csv"]:
+                 "mems_me.csv", "build/Solenoid/Solenoid_Proposition1.fmu", "my_scenario/SystemStructure.ssd",
+                 "my_scenario.png"]:
         assert (repo / name).stat().st_size > 0, name
     claims = json.loads((repo / "results" / "claims.json").read_text())
     assert claims["banner"] is None and len(claims["claims"]) == 14

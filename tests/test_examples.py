@@ -118,3 +118,21 @@ def test_the_committed_scenario_is_what_plant_scenario_writes(name, tmp_path):
     assert written.keys() == committed.keys()
     for k in written:
         assert written[k] == committed[k], k
+
+
+@pytest.mark.parametrize("name, grid", [("Solenoid", {"controller.W": 300.0}),
+                                        ("LevitatedBar", {"controller.k_c_1_1": 10.0})])
+def test_a_sweep_point_of_an_example_gives_the_metrics_of_its_first_position(name, grid, built):
+    """emcosim sweep's row for one grid point (emcosim.paper.sweep.run_point, what each Dask task runs): the
+    metrics of q_1 against its set-point, from the device's own variable names."""
+    from emcosim.paper.sweep import close_sessions, run_point
+
+    try:                                   # the device is known by the description its FMUs carry
+        row = run_point(str(SCENARIOS[name] / "SystemStructure.ssd"), str(built[name]), grid)
+    finally:
+        close_sessions()
+    assert row["status"] == "ok", row["status"]
+    plant = read_scenario(SCENARIOS[name]).components[-1].parameters
+    q_1 = catalog.DEVICES[name].q[0].name
+    assert row["initial_error"] == pytest.approx(plant[f"{q_1}_0"].value - {"Solenoid": 0.001, "LevitatedBar": 0.0025}[name])
+    assert abs(row["final_error"]) < 0.02 * abs(row["initial_error"])

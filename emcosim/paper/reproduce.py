@@ -86,16 +86,23 @@ def plant_and_controller(scenario) -> tuple[str, str]:
 
 
 def run_from_result(name: str, label: str, scenario, result) -> report.Run:
-    """A report.Run from the master's recorded columns plus the design's target eta*(t)."""
+    """A report.Run from the master's recorded columns plus the design's target eta*(t). The columns are
+    found by the device's variable names (components.catalog.DEVICES); for a device with several positions
+    or inputs the run's q, p, x_e are those of the first position and first electrical state, and u the
+    input of the largest magnitude at each time (the metrics of `emcosim sweep` are those of q_1)."""
+    from components import catalog
+
     d = design_from_scenario(scenario)
     plant, controller = plant_and_controller(scenario)
+    device = catalog.DEVICES[catalog.CONTROLLER_PLANT[d.controller_name]]
     t = result.time
     jets = [None if d.reference is None else d.reference.jet(tt) for tt in t]
     eta_star = np.array([d.controller.target(j) for j in jets])
-    model = "MEMS" if d.controller_name.startswith("MEMS") else "Maglev"
     H = result[f"{plant}.H"] if f"{plant}.H" in result.columns else None
-    return report.Run(name, model, label, t, result[f"{plant}.q"], result[f"{plant}.p"], result[f"{plant}.x_e"],
-                      result[f"{controller}.u"], eta_star,
+    inputs = np.array([result[f"{controller}.{v.name}"] for v in device.u])
+    u = inputs[np.argmax(np.abs(inputs), axis=0), np.arange(inputs.shape[1])] if len(device.u) > 1 else inputs[0]
+    return report.Run(name, device.name, label, t, result[f"{plant}.{device.q[0].name}"],
+                      result[f"{plant}.{device.p[0].name}"], result[f"{plant}.{device.x_e[0].name}"], u, eta_star,
                       horizon=float(scenario.stop_time) if scenario.stop_time is not None else float("nan"), H=H)
 
 

@@ -62,6 +62,14 @@ LAYER_GONE = 50.0           # alpha h above which exp(-alpha h) < 2e-22: nothing
 MAX_SUBSTEPS = 100_000
 
 
+def step_factor(e: float) -> tuple[float, float]:
+    """(e, factor): the scaled error norm of a substep (inf if not finite) and the factor its successor's
+    size gets (RODAS4's embedded order-3 estimate: 0.9 e^(-1/4), limited to [0.2, 5])."""
+    if not math.isfinite(e):
+        return math.inf, 0.2
+    return e, (min(5.0, max(0.2, 0.9 * e ** (-1.0 / _ERROR_ORDER))) if e > 0 else 5.0)
+
+
 class StepFailure(RuntimeError):
     """The integration of a communication step failed (step size underflow, too many substeps)."""
 
@@ -515,10 +523,7 @@ class PlantStepper:
                 e = math.sqrt(((e0 / n0) ** 2 + (e1 / n1) ** 2 + (e2 / n2) ** 2) / 3.0)
             except (ArithmeticError, ValueError):
                 e = math.inf
-            if not math.isfinite(e):
-                e, factor = math.inf, 0.2
-            else:
-                factor = min(5.0, max(0.2, 0.9 * e ** (-1.0 / _ERROR_ORDER))) if e > 0 else 5.0
+            e, factor = step_factor(e)
             if e <= 1.0:
                 n_ok += 1
                 y = y_new
@@ -757,10 +762,7 @@ class GeneralStepper:
                 e = float(np.sqrt(np.mean((err / (rtol * (1.0 + np.maximum(np.abs(y), np.abs(y_new))))) ** 2)))
             except (ArithmeticError, ValueError, np.linalg.LinAlgError):
                 e = math.inf
-            if not math.isfinite(e):
-                e, factor = math.inf, 0.2
-            else:
-                factor = min(5.0, max(0.2, 0.9 * e ** (-1.0 / _ERROR_ORDER))) if e > 0 else 5.0
+            e, factor = step_factor(e)
             if e <= 1.0:
                 n_ok += 1
                 y = y_new

@@ -21,13 +21,13 @@ import tokenize
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 import sympy
 from sympy.parsing.sympy_parser import parse_expr
 
-from .device import Device, VariableSpec
+from .device import VariableSpec
 from .parameters import Parameter
 
 FUNCTIONS: dict[str, Any] = {
@@ -577,11 +577,3 @@ def gain_table(desc: Description) -> tuple[dict[str, list[list[float]]], dict[st
         defaults[gain] = [[float(x) for x in row] for row in value]
     used = {n for _, names in forms.values() for n in names}
     return defaults, forms, {n: p for n, p in desc.gain_parameters.items() if n in used}
-
-
-def device(desc: Description, designs: Sequence[str] | None = None) -> Device:
-    """The components.device.Device of a description: its generated plant class and the controllers of
-    `designs` (the designs that apply, e.g. from components.plant_check; default: all four) with their
-    gains under the paper's names (q_d, R_e_bar, D_d, k_c; entries q_d_1, R_e_bar_1_2, ... where n > 1)."""
-    from . import codegen
-    return codegen.load_module(desc).device(designs)

@@ -11,7 +11,7 @@ check reports
   parameter value under the parameters' conditions), exact at the parameter values (sympy numbers), or
   numeric over a stated box (samples; not rigorous between samples);
 - which of Proposition 1/2 and Theorem 2/3 apply (each needs its assumption) and, if not, the failing
-  condition. `Report.designs` lists those that apply for `components.description.device`.
+  condition. `Report.designs` lists those that apply for `components.codegen.device`.
 
 The formulas are the paper's definitions evaluated on the description's sympy objects; the numeric checks of a
 built controller stay in components.certificates (whose eigenvalue helpers and verdict names are reused here).
@@ -99,7 +99,7 @@ class Report:
 
     @property
     def designs(self) -> list[str]:
-        """The designs that apply ("Proposition1", ...), for components.description.device(desc, designs)."""
+        """The designs that apply ("Proposition1", ...), for components.codegen.device(desc, designs)."""
         return [d.name for d in self.design_verdicts if d.applies]
 
     def not_applicable(self) -> list[str]:

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from components import codegen, maglev, mems
-from components.description import device, parse
+from components.codegen import device
+from components.description import parse
 from components.ph_plant import DomainError, Jet
 from components.proposition1 import Proposition1
 from components.proposition2 import Proposition2

@@ -373,7 +373,7 @@ def test_bar_tracks_a_stacked_reference_over_the_longest_period():
 
 
 def test_the_device_gets_the_designs_that_apply():
-    from components.description import device
+    from components.codegen import device
 
     desc = load(PLANTS / "maglev.toml")
     r = check(desc)

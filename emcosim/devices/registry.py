@@ -17,12 +17,12 @@ DESCRIPTION_RESOURCE = "resources/emcosim_description.toml"   # where `emcosim p
 def load(path: str | Path, q_d=None, reference=None, horizon: float | None = None):
     """(description, check report, device) of a description file; the device has the designs the check
     finds applicable. DescriptionError (a ValueError) names a wrong entry."""
+    from components import codegen, plant_check
     from components import description as descriptions
-    from components import plant_check
 
     desc = descriptions.load(path)
     report = plant_check.check(desc, q_d=q_d, reference=reference, horizon=horizon)
-    return desc, report, descriptions.device(desc, list(report.designs))
+    return desc, report, codegen.device(desc, list(report.designs))
 
 
 def register_description(path: str | Path) -> Device:

@@ -64,6 +64,35 @@ class _Described:
             if not hasattr(type(self), k):               # the parameters as attributes, unless a method's name
                 setattr(self, k, v)
         self._setup()
+        self._check_structure()
+
+    def _check_structure(self) -> None:
+        """The conditions of eq. (open-loop elecmech) on the constant matrices, at these parameter values
+        (the description was checked at its defaults only): R_m, R_e symmetric positive semi-definite,
+        J_e skew-symmetric, G_e invertible, a constant M symmetric positive definite. A ValueError names
+        the matrix, its value and the parameters."""
+        values = ", ".join(f"{k} = {v:g}" for k, v in self.params.items())
+        owner = self.name                                            # type: ignore[attr-defined]
+
+        def refuse(what: str, A: np.ndarray, condition: str) -> None:
+            raise ValueError(f"{owner}: {what} = {np.round(A, 12).tolist()} violates {condition} "
+                             f"(eq. open-loop elecmech) with {values}")
+
+        for what in ("R_m", "R_e"):
+            A = np.asarray(getattr(self, what), dtype=float)
+            tiny = -1e-12 * max(1.0, float(np.max(np.abs(A))))
+            if not np.allclose(A, A.T, rtol=1e-12, atol=0.0) or np.min(np.linalg.eigvalsh(A)) < tiny:
+                refuse(what, A, f"{what} = {what}^T >= 0")
+        J_e = np.asarray(self.J_e, dtype=float)                     # type: ignore[attr-defined]
+        if not np.allclose(J_e, -J_e.T, rtol=1e-12, atol=0.0):
+            refuse("J_e", J_e, "J_e = -J_e^T")
+        G_e = np.asarray(self.G_e, dtype=float)                     # type: ignore[attr-defined]
+        if np.linalg.matrix_rank(G_e) < G_e.shape[0]:
+            refuse("G_e", G_e, "rank G_e = n_e")
+        if self.constant_mass:                                       # type: ignore[attr-defined]
+            M_inv = np.asarray(self.M_inv(np.zeros(len(self.VARIABLES["q"]))), dtype=float)   # type: ignore[attr-defined]
+            if not np.all(np.isfinite(M_inv)) or np.min(np.linalg.eigvalsh((M_inv + M_inv.T) / 2)) <= 0:
+                refuse("M^-1", M_inv, "M = M^T > 0")
 
     def _setup(self) -> None:
         """Generated: the constant matrices (and bounds) from the parameters."""
@@ -100,9 +129,12 @@ class DescribedOneDOF(_Described, OneDOFPlant):
     def check_state(self, eta) -> None:
         OneDOFPlant.check_state(self, eta)
         q = np.real(eta[0])
-        if self.linear_domain and self.q_min < q < self.q_max:
-            return
-        self._domain_error((q,))
+        if not (self.linear_domain and self.q_min < q < self.q_max):
+            self._domain_error((q,))
+        if not np.real(self.psi(q)) > 0:                         # eq. (elec energy): Psi > 0
+            raise DomainError(f"{self.name}: Psi(q) = {np.real(self.psi(q)):.6g} is not positive at q = {q:.6g} "
+                              f"(eq. elec energy: the stored energy must be positive) with "
+                              + ", ".join(f"{k} = {v:g}" for k, v in self.params.items()))
 
 
 class DescribedPlant(_Described, EMPlant):
@@ -117,7 +149,13 @@ class DescribedPlant(_Described, EMPlant):
 
     def check_state(self, eta) -> None:
         EMPlant.check_state(self, eta)
-        self._domain_error(np.real(np.asarray(eta)[:self.n_m]))
+        q = np.real(np.asarray(eta)[:self.n_m])
+        self._domain_error(q)
+        Psi = np.real(np.asarray(self.Psi(q), dtype=complex))
+        if not np.min(np.linalg.eigvalsh((Psi + Psi.T) / 2)) > 0:    # eq. (elec energy): Psi > 0
+            raise DomainError(f"{self.name}: Psi(q) = {np.round(Psi, 12).tolist()} is not positive definite at "
+                              f"q = {q.tolist()} (eq. elec energy) with "
+                              + ", ".join(f"{k} = {v:g}" for k, v in self.params.items()))
 
     def force_jet(self, q, qd, qdd, qddd) -> tuple[np.ndarray, np.ndarray]:
         """Generated: (F*, dF*/dt) of the p-row of eq. (open-loop elecmech) along a reference jet,

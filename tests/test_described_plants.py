@@ -319,3 +319,34 @@ def test_functions_take_floats_and_complex_numbers():
             assert close(getattr(P, df)(q), np.imag(getattr(P, f)(complex(q, H))) / H), (f, q)
     with pytest.raises(DomainError, match="violates q < c"):
         P.check_state(np.array([0.006, 0.0, 0.0]))
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"R_e": -1.0}, "R_e = [[-1.0]] violates R_e = R_e^T >= 0"),
+    ({"R_m": -0.5}, "R_m = [[-0.5]] violates R_m = R_m^T >= 0"),
+    ({"m": -0.1}, "violates M = M^T > 0"),
+])
+def test_a_plant_of_the_issues_file_refuses_parameters_that_break_the_structure(values, message):
+    """The issue's file gives no parameter conditions, so the parameters are any finite numbers; the plant
+    still refuses values that break eq. (open-loop elecmech) (checked at these values, not only at the
+    defaults as the description was), naming the matrix and the parameters."""
+    from components.codegen import plant_class
+    from tests.test_description import ISSUE_MAGLEV
+
+    cls = plant_class(parse(ISSUE_MAGLEV, "issue25.toml"))
+    with pytest.raises(ValueError) as err:
+        cls(**values)
+    assert message in str(err.value) and "with k = 0.64042" in str(err.value)
+
+
+def test_a_state_where_psi_is_not_positive_is_refused():
+    """k < 0 makes Psi = (c - q)/k negative inside q < c: the plant's check_state (which a plant FMU runs on
+    its initial state) says so instead of integrating a negative stored energy."""
+    from components.codegen import plant_class
+    from components.ph_plant import DomainError
+    from tests.test_description import ISSUE_MAGLEV
+
+    plant = plant_class(parse(ISSUE_MAGLEV, "issue25.toml"))(k=-0.64042)
+    with pytest.raises(DomainError, match=r"Psi\(q\) = .* is not positive at q = 0.0025"):
+        plant.check_state(np.array([0.0025, 0.0, 1.0]))
+    plant_class(parse(ISSUE_MAGLEV, "issue25.toml"))().check_state(np.array([0.0025, 0.0, 1.0]))

@@ -90,10 +90,15 @@ def parse_unit(unit: str) -> dict[str, int]:
 
 class _RateUnits(dict):
     """unit -> the unit of its time derivative: the paper's FMUs' names where they have one (kg.m/s -> N),
-    else unit + "/s" (der(q) of any state q)."""
+    else one more power of s in the denominator: kg.m2/s -> kg.m2/s2, m/s2 -> m/s3, rad -> rad/s."""
 
     def __missing__(self, unit: str) -> str:
-        return "1/s" if unit == "1" else f"{unit}/s"
+        if unit == "1":
+            return "1/s"
+        match = re.fullmatch(r"(.*)/s(\d*)", unit)
+        if match:
+            return f"{match.group(1)}/s{int(match.group(2) or 1) + 1}"
+        return f"{unit}/s"
 
 
 # the unit of the time derivative of a quantity in `unit` (der(q) of a state q)

@@ -335,3 +335,14 @@ def test_the_build_is_reproducible(device_fmus, tmp_path):
     description = device_fmus["TwoAxis"].parent.parent / "TwoAxis.toml"
     again = build_device(HERE / "device_two_axis.py", "TwoAxis", None, tmp_path, description=description)
     assert all(again[k].read_bytes() == device_fmus[k].read_bytes() for k in device_fmus)
+
+
+@pytest.mark.parametrize("unit, rate", [("m", "m/s"), ("kg.m/s", "N"), ("kg.m2/s", "kg.m2/s2"), ("m/s2", "m/s3"),
+                                        ("rad", "rad/s"), ("1", "1/s")])
+def test_the_unit_of_a_state_derivative_has_one_more_power_of_s(unit, rate):
+    from fmus.variables import RATE_UNITS, parse_unit
+
+    assert RATE_UNITS[unit] == rate
+    expected = dict(parse_unit(unit))
+    expected["s"] = expected.get("s", 0) - 1
+    assert parse_unit(rate) == {k: v for k, v in expected.items() if v}

@@ -22,6 +22,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import sympy
+from sympy.printing.precedence import precedence
 from sympy.printing.str import StrPrinter
 
 from .description import FUNCTIONS, Description, load
@@ -44,6 +45,12 @@ class _Printer(StrPrinter):
     def _print_Float(self, expr):
         return repr(float(expr))
 
+    def _print_Integer(self, expr):
+        # a float literal: float arithmetic with an int operand goes through int.__truediv__ / __mul__,
+        # which return NotImplemented, before float's reflected method (benchmarks/bench_laws.py: the MEMS's
+        # dpsi -1/(...) 1.11x and d2psi 2/(...) 1.10x the hand-written 1.0/(...); with float literals 1.00x)
+        return repr(float(expr))
+
     def _print_Rational(self, expr):
         return f"({expr.p}/{expr.q})"
 
@@ -63,7 +70,12 @@ class _Printer(StrPrinter):
         if e == sympy.S.Half:
             return f"_sqrt({self._print(base)})"
         if e == -sympy.S.Half:
-            return f"(1/_sqrt({self._print(base)}))"
+            return f"(1.0/_sqrt({self._print(base)}))"
+        if e.is_Integer and e > 0:                  # an int exponent: x**2 (float ** int is float's fast path)
+            return f"{self.parenthesize(base, precedence(expr), strict=False)}**{int(e)}"
+        if e.is_Integer:
+            return f"1.0/{self.parenthesize(base, precedence(expr), strict=False)}**{-int(e)}" if e != -1 else \
+                f"1.0/{self.parenthesize(base, precedence(expr), strict=False)}"
         return super()._print_Pow(expr, rational)
 
 

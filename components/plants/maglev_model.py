@@ -43,14 +43,14 @@ class Maglev(_DescribedOneDOF):
     def _setup(_self):
         """The constant matrices of eq. (open-loop elecmech) from the parameters."""
         _self.R_m = _np.array([[_self._p_R_m]], dtype=float)
-        _self.J_e = _np.array([[0]], dtype=float)
+        _self.J_e = _np.array([[0.0]], dtype=float)
         _self.R_e = _np.array([[_self._p_R_e]], dtype=float)
-        _self.G_e = _np.array([[1]], dtype=float)
-        _self.Gamma = _np.array([[0.5*1/_self._p_k]], dtype=float)   # Assumptions 2/4 (derived)
+        _self.G_e = _np.array([[1.0]], dtype=float)
+        _self.Gamma = _np.array([[0.5*1.0/_self._p_k]], dtype=float)   # Assumptions 2/4 (derived)
         _M = _np.array([[_self._p_m]], dtype=float)
         _self._M_inv = _np.linalg.inv(_M)
         _self.m = _self._p_m
-        _a, _b = -1, _self._p_c
+        _a, _b = -1.0, _self._p_c
         if _a > 0:
             _self.q_min = max(_self.q_min, -_b / _a)
         else:
@@ -74,7 +74,7 @@ class Maglev(_DescribedOneDOF):
 
     def dpsi(_self, q):
         """Psi'(q)."""
-        return -1/_self._p_k + 0.0 * q
+        return -1.0/_self._p_k + 0.0 * q
 
     def d2psi(_self, q):
         """Psi''(q)."""
@@ -87,7 +87,7 @@ class Maglev(_DescribedOneDOF):
 
     def phi_s(_self, x_e):
         """phi of Assumptions 2/4 (eq. assHereg)."""
-        return x_e**3/3
+        return x_e**3/3.0
 
     def dphi(_self, x_e):
         """phi'(x_e)."""
@@ -95,7 +95,7 @@ class Maglev(_DescribedOneDOF):
 
     def d2phi(_self, x_e):
         """phi''(x_e)."""
-        return 2*x_e
+        return 2.0*x_e
 
     def phi(_self, x_e):
         return _self.phi_s(x_e[0])

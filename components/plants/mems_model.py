@@ -44,13 +44,13 @@ class MEMS(_DescribedOneDOF):
     def _setup(_self):
         """The constant matrices of eq. (open-loop elecmech) from the parameters."""
         _self.R_m = _np.array([[_self._p_R_m]], dtype=float)
-        _self.J_e = _np.array([[0]], dtype=float)
-        _self.R_e = _np.array([[1/_self._p_r_e]], dtype=float)
-        _self.G_e = _np.array([[1/_self._p_r_e]], dtype=float)
+        _self.J_e = _np.array([[0.0]], dtype=float)
+        _self.R_e = _np.array([[1.0/_self._p_r_e]], dtype=float)
+        _self.G_e = _np.array([[1.0/_self._p_r_e]], dtype=float)
         _M = _np.array([[_self._p_m]], dtype=float)
         _self._M_inv = _np.linalg.inv(_M)
         _self.m = _self._p_m
-        _a, _b = 1, _self._p_c0
+        _a, _b = 1.0, _self._p_c0
         if _a > 0:
             _self.q_min = max(_self.q_min, -_b / _a)
         else:
@@ -66,19 +66,19 @@ class MEMS(_DescribedOneDOF):
 
     def d2V(_self, q):
         """V''(q)."""
-        return _self._p_a1 + 3*_self._p_a2*q**2
+        return _self._p_a1 + 3.0*_self._p_a2*q**2
 
     def psi(_self, q):
         """Psi(q) of eq. (elec energy)."""
-        return 1/(_self._p_c1*(q + _self._p_c0))
+        return 1.0/(_self._p_c1*(q + _self._p_c0))
 
     def dpsi(_self, q):
         """Psi'(q)."""
-        return -1/(_self._p_c1*(q + _self._p_c0)**2)
+        return -1.0/(_self._p_c1*(q + _self._p_c0)**2)
 
     def d2psi(_self, q):
         """Psi''(q)."""
-        return 2/(_self._p_c1*(q + _self._p_c0)**3)
+        return 2.0/(_self._p_c1*(q + _self._p_c0)**3)
 
     def margins(_self, q):
         """Domain margins g_j(q) > 0."""
@@ -94,7 +94,7 @@ GAIN_DEFAULTS: dict[str, list[list[float]]] = {'q_d': [[3e-05]], 'D_d': [[0.0]],
 
 def _form_R_e_bar(rbar_e):
     """R_e_bar of the description's [controller] table."""
-    return _np.array([[1/rbar_e]], dtype=float)
+    return _np.array([[1.0/rbar_e]], dtype=float)
 
 GAIN_FORMS: dict[str, tuple] = {'R_e_bar': (_form_R_e_bar, ('rbar_e',))}
 

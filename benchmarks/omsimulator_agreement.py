@@ -42,7 +42,16 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-STATES = ("plant.q", "plant.p", "plant.x_e", "controller.u")
+STATES = ("plant.q", "plant.p", "plant.x_e", "controller.u")   # the paper's archives; others: states_of
+
+
+def states_of(scenario) -> tuple[str, ...]:
+    """What is compared: the plant's outputs but H (its states, by their names: a device's z, theta, ...) and
+    the controller's outputs (u, or u_1, u_2, ...); the paper's STATES for the paper's archives."""
+    by_name = {c.name: c for c in scenario.components}
+    out = [f"{name}.{k.name}" for name in ("plant", "controller") if name in by_name
+           for k in by_name[name].connectors if k.kind == "output" and k.name != "H"]
+    return tuple(out) or STATES
 # emcosim's couplings compared: name -> keyword arguments of master.simulate
 COUPLINGS: dict[str, dict[str, Any]] = {
     "default": {},
@@ -144,19 +153,20 @@ def run_emcosim(archive: Path, couplings: list[str]) -> tuple[Any, dict[str, tup
     from emcosim.engine.ssd import read_scenario
 
     scenario = read_scenario(archive)
+    states = states_of(scenario)
     runs, failed = {}, {}
     for name in couplings:
         t0 = time.perf_counter()
         try:
-            r = simulate(scenario, record=list(STATES), **COUPLINGS[name])
+            r = simulate(scenario, record=list(states), **COUPLINGS[name])
         except SimulationError as exc:
             failed[name] = str(exc).splitlines()[0][:200]
             r = exc.result
         wall = time.perf_counter() - t0
         if r is None or r.n_rows == 0:
-            runs[name] = (np.zeros(0), {s: np.zeros(0) for s in STATES}, wall)
+            runs[name] = (np.zeros(0), {s: np.zeros(0) for s in states}, wall)
         else:
-            runs[name] = (np.asarray(r.time), {s: np.asarray(r[s]) for s in STATES}, wall)
+            runs[name] = (np.asarray(r.time), {s: np.asarray(r[s]) for s in states}, wall)
     return scenario, runs, failed
 
 
@@ -176,7 +186,7 @@ def distances(oms: dict[str, np.ndarray], em_time: np.ndarray, em: dict[str, np.
         k = np.where(np.abs(t_last[k - 1] - te) <= np.abs(t_last[k] - te), k - 1, k)
     dt = float(np.max(np.abs(t_last[k] - te))) if len(te) else float("nan")
     out = {}
-    for s in STATES:
+    for s in em:
         col = _column(oms, s)
         if col is None:
             out[s] = float("nan")
@@ -212,10 +222,11 @@ def measure(binary: Path, archive: Path, args: argparse.Namespace) -> dict[str, 
     u = _column(res, "controller.u")
     row["u_differs_in_duplicate_rows"] = float(np.max(np.abs(u[dup + 1] - u[dup]))) if u is not None and len(dup) else 0.0
     row["vs"] = {}
+    row["states"] = list(states_of(scenario))
     row["points"], row["dt"] = 0, 0.0
     for c in couplings:
         if len(em[c][0]) == 0:
-            row["vs"][c] = {s: float("nan") for s in STATES}
+            row["vs"][c] = {s: float("nan") for s in row["states"]}
             continue
         d, n, dt = distances(res, em[c][0], em[c][1], h)
         row["vs"][c] = d
@@ -227,14 +238,15 @@ def measure(binary: Path, archive: Path, args: argparse.Namespace) -> dict[str, 
 
 def table(rows: list[dict[str, Any]], match: str, couplings: list[str]) -> str:
     others = [c for c in couplings if c != match]
+    states = list(dict.fromkeys(s for r in rows for s in r.get("states", STATES)))   # every archive's, in order
     head = (["archive", "T [s]", "rc", "rows to T", "errors/warnings", "OMSimulator [s]", f"emcosim {match} [s]"]
-            + [f"{s} vs {match}" for s in STATES] + [f"max vs {c}" for c in others])
+            + [f"{s} vs {match}" for s in states] + [f"max vs {c}" for c in others])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [r["name"], f"{r['T']:g}", str(r["rc"]), "yes" if r["to_stop"] else f"no ({r.get('t_end', '-')})",
                  f"{r['errors']}/{r['warnings']}", f"{r['oms_wall']:.2f}", f"{r['em_wall'][match]:.2f}"]
         if "vs" in r:
-            cells += [f"{r['vs'][match][s]:.1e}" for s in STATES]
+            cells += [f"{r['vs'][match][s]:.1e}" if s in r["vs"][match] else "" for s in states]
             cells += [f"{max(r['vs'][c].values()):.1e}" for c in others]
         else:
             cells += [r["problem"]] + [""] * (len(head) - len(cells) - 1)

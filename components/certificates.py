@@ -190,11 +190,13 @@ def neighbourhood(controller: Controller, reference: Reference | None = None, ho
 
 # ---- assumptions -------------------------------------------------------------------------------
 
-def _min_eig(A: np.ndarray) -> float:
+def min_eig(A: np.ndarray) -> float:
+    """The smallest eigenvalue of the symmetric part of A (A > 0 iff it is > 0)."""
     return float(np.min(np.linalg.eigvalsh(0.5 * (A + A.T))))
 
 
-def _max_eig(A: np.ndarray) -> float:
+def max_eig(A: np.ndarray) -> float:
+    """The largest eigenvalue of the symmetric part of A."""
     return float(np.max(np.linalg.eigvalsh(0.5 * (A + A.T))))
 
 
@@ -206,8 +208,8 @@ def assumption_1(controller: Controller) -> Check:
     """hess_q H(eta_d) > 0 and R_m > 0."""
     plant, eta_d = controller.plant, controller.target()
     m = plant.n_m
-    h = _min_eig(plant.hess_H(eta_d)[:m, :m])
-    r = _min_eig(plant.R_m)
+    h = min_eig(plant.hess_H(eta_d)[:m, :m])
+    r = min_eig(plant.R_m)
     return Check("Assumption 1", _verdict(h > 0 and r > 0),
                  {"min eig hess_q H(eta_d)": h, "min eig R_m": r}, "at the set-point")
 
@@ -228,7 +230,7 @@ def assumption_2(controller: Controller, nb: Neighbourhood) -> Check:
     """grad_q H_e = -Gamma grad phi on the neighbourhood and hess phi(x_e_d) > 0."""
     plant = controller.plant
     res = _gamma_phi_residual(controller, nb)
-    h = _min_eig(plant.hess_phi(plant.split(controller.target())[2]))
+    h = min_eig(plant.hess_phi(plant.split(controller.target())[2]))
     return Check("Assumption 2", _verdict(res < 1e-10 and h > 0),
                  {"max rel. residual grad_q H_e + Gamma grad phi": res, "min eig hess phi(x_e_d)": h})
 
@@ -240,8 +242,8 @@ def assumption_3(controller: Controller, nb: Neighbourhood) -> Check:
     lo, hi = np.inf, -np.inf
     for eta, _ in nb.samples:
         block = plant.hess_H(eta)[:2 * m, :2 * m]
-        lo, hi = min(lo, _min_eig(block)), max(hi, _max_eig(block))
-    r = _min_eig(plant.R_m)
+        lo, hi = min(lo, min_eig(block)), max(hi, max_eig(block))
+    r = min_eig(plant.R_m)
     return Check("Assumption 3", _verdict(r > 0 and lo > 0),
                  {"min eig R_m": r, "alpha (sampled min eig)": lo, "beta (sampled max eig)": hi})
 
@@ -251,7 +253,7 @@ def assumption_4(controller: Controller, nb: Neighbourhood) -> Check:
     plant = controller.plant
     res = _gamma_phi_residual(controller, nb)
     jets = {id(j): j for _, j in nb.samples}.values()
-    h = min(_min_eig(plant.hess_phi(plant.split(controller.target(j))[2])) for j in jets)
+    h = min(min_eig(plant.hess_phi(plant.split(controller.target(j))[2])) for j in jets)
     return Check("Assumption 4", _verdict(res < 1e-10 and h > 0),
                  {"max rel. residual grad_q H_e + Gamma grad phi": res, "min eig hess phi(x_e*(t))": h})
 
@@ -284,8 +286,8 @@ def theorem1(controller: Controller, nb: Neighbourhood) -> tuple[list[Check], fl
     c1 = Check("Theorem 1 (i): F_d Hurwitz", _verdict(np.max(eig_F.real) < 0),
                {"eigenvalues of F_d": eig_F, "max real part": float(np.max(eig_F.real))})
     hess = [controller.hess_H_d(eta, jet) for eta, jet in nb.samples]
-    g1 = min(_min_eig(h) for h in hess)
-    g2 = max(_max_eig(h) for h in hess)
+    g1 = min(min_eig(h) for h in hess)
+    g2 = max(max_eig(h) for h in hess)
     c2 = Check("Theorem 1 (ii): gamma1 I < hess H_d < gamma2 I", _verdict(g1 > 0),
                {"gamma1 (sampled)": g1, "gamma2 (sampled)": g2, "gamma1/gamma2": g1 / g2}, "sampled bound")
     if not (c1.verdict == HOLDS and g1 > 0):
@@ -302,9 +304,9 @@ def theorem1(controller: Controller, nb: Neighbourhood) -> tuple[list[Check], fl
         X = vec[:, lam.real < 0]
         Omega = np.real(X[n:] @ np.linalg.inv(X[:n]))
         Omega = 0.5 * (Omega + Omega.T)
-        if _min_eig(Omega) <= 0:
+        if min_eig(Omega) <= 0:
             continue
-        sigma = g2 * eps / _max_eig(Omega)       # sigma = beta3 eps lambda_min(omega^-T omega^-1)
+        sigma = g2 * eps / max_eig(Omega)       # sigma = beta3 eps lambda_min(omega^-T omega^-1)
         if best is None or sigma > best[0]:
             best = (sigma, eps, Omega)
     if best is None:
@@ -684,16 +686,16 @@ def design_checks(controller: Controller, jet=None) -> list[Check]:
     `certify` (emcosim certify) evaluates them.
     """
     plant, name = controller.plant, controller.name
-    k_e = _min_eig(controller.K_e)
+    k_e = min_eig(controller.K_e)
     checks = []
     if name == "Proposition 1":
         checks.append(assumption_1(controller))
     if name in ("Proposition 1", "Proposition 2"):
-        h = _min_eig(controller.hess_H_d(controller.target()))
+        h = min_eig(controller.hess_H_d(controller.target()))
         label = "eq. (phi12)" if name == "Proposition 1" else "eq. (Phic22)"
         checks.append(Check(f"{label}: hess H_d(eta_d) > 0", _verdict(h > 0), {"min eig hess H_d(eta_d)": h}))
     if name == "Theorem 2":
-        r = _min_eig(plant.R_m)
+        r = min_eig(plant.R_m)
         checks.append(Check("Assumption 3: R_m > 0", _verdict(r > 0), {"min eig R_m": r}))
     if name in ("Proposition 2", "Theorem 3"):
         which = "Assumption 2: hess phi(x_e_d) > 0" if name == "Proposition 2" else "Assumption 4: hess phi(x_e*) > 0"
@@ -701,7 +703,7 @@ def design_checks(controller: Controller, jet=None) -> list[Check]:
             checks.append(Check(which, NOT_APPLICABLE, {}, "no reference given"))
         else:
             x_e = plant.split(controller.target(jet) if controller.tracking else controller.target())[2]
-            h = _min_eig(plant.hess_phi(x_e))
+            h = min_eig(plant.hess_phi(x_e))
             checks.append(Check(which, _verdict(h > 0), {"min eig hess phi": h}))
     strict_k = name == "Theorem 3"
     checks.append(Check(f"K_e = R_e_bar - R_e {'>' if strict_k else '>='} 0 ({name})",

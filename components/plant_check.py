@@ -29,7 +29,7 @@ import numpy as np
 import sympy
 from scipy import optimize
 
-from .certificates import FAILS, HOLDS, _max_eig, _min_eig, reference_period
+from .certificates import FAILS, HOLDS, max_eig, min_eig, reference_period
 from .device import DESIGNS
 from .ph_plant import Jet
 from .references import Constant, Reference, Sinusoid, SmoothStep
@@ -429,7 +429,7 @@ def R_m_test(model: Model) -> Test:
         how = "not decided symbolically for every admissible parameter value; " + how
     R = np.array(model.at_values(model.desc.R_m).evalf(), dtype=float)
     verdict = HOLDS if ok else (FAILS if ok is False else NOT_DECIDED)
-    return Test("R_m > 0", verdict, how, f"R_m = {R.tolist()}, min eig {_min_eig(R):.6g}")
+    return Test("R_m > 0", verdict, how, f"R_m = {R.tolist()}, min eig {min_eig(R):.6g}")
 
 
 def hess_q_H(model: Model) -> sympy.Matrix:
@@ -460,7 +460,7 @@ def assumption_1(model: Model, q_d: list[float] | None, x_e_d: list[sympy.Expr] 
             how += " (x_e_d found numerically)"
         value = np.array(model.at_values(Hqq).subs(at).evalf(), dtype=float)
         v.tests.append(Test(cond, HOLDS if ok else (FAILS if ok is False else NOT_DECIDED), how,
-                            f"hess_q H(eta_d) = {value.tolist()}, min eig {_min_eig(value):.6g}"))
+                            f"hess_q H(eta_d) = {value.tolist()}, min eig {min_eig(value):.6g}"))
     return v
 
 
@@ -510,9 +510,9 @@ def hess_phi_at(model: Model, x_e: Sequence[Any], exactly: bool) -> tuple[bool |
     if exactly:
         ok, how = _decide(H, model, dict(zip(model.x, x_e)), "", symbolic=False)
         value = np.array(model.at_values(H).subs(dict(zip(model.x, x_e))).evalf(), dtype=float)
-        return ok, _min_eig(value), how
+        return ok, min_eig(value), how
     value = np.array(model.numeric("hess_phi", H, model.x)(*x_e), dtype=float).reshape(model.n_e, model.n_e)
-    lam = _min_eig(value)
+    lam = min_eig(value)
     return bool(lam > 0), lam, "numerically"
 
 
@@ -616,7 +616,7 @@ def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
     lo, hi = np.inf, -np.inf
     for eta in points:
         B = np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(2 * m, 2 * m)
-        lo, hi = min(lo, _min_eig(B)), max(hi, _max_eig(B))
+        lo, hi = min(lo, min_eig(B)), max(hi, max_eig(B))
     v.tests.append(Test(cond, HOLDS if lo > 0 else FAILS, "numerically over S (see the box)",
                         f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"))
     return v

@@ -433,10 +433,11 @@ def build_description(description: Path | str, dest: Path | str, designs: Sequen
     (`<stem>_model.py`, in a temporary folder), then `build_device` builds the plant and a
     controller per design of `designs` (None: those the generated device() gives), with the description
     file in resources/. A DescriptionError (components.description) names a wrong entry; nothing is built."""
+    from components import codegen  # sympy: imported only when a description is built
+    from components.description import load
+
     description = Path(description).resolve()
-    loader = importlib.import_module("components.description")
-    codegen = importlib.import_module("components.codegen")
-    desc = loader.load(description)
+    desc = load(description)
     with tempfile.TemporaryDirectory(prefix="emcosim_description_") as tmp:
         module = Path(tmp) / f"{description.stem.lower()}_model.py"
         module.write_text(codegen.module_source(desc, description.name))

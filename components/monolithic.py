@@ -24,6 +24,7 @@ from scipy.integrate import BDF, LSODA, Radau
 
 from . import differentiation
 from .controller import Controller
+from .ph_plant import EMPlant
 from .references import Reference
 
 
@@ -212,3 +213,27 @@ def _march(loop: ClosedLoop, eta0, t_grid, rtol, scale, max_step, method) -> _Ru
                 out.append(dense(t_grid[k]) * scale)
                 k += 1
     return _Run(t_grid[:len(out)], np.array(out), success, message, steps, solver)
+
+
+def open_loop_exit(plant: EMPlant, eta0, u, t_end: float, rtol: float = 1e-8) -> float | None:
+    """The time at which the open loop eta' = f(eta, u) (eq. open-loop elecmech, u held) from eta0 leaves the
+    plant's admissible domain, or None if it stays inside over [0, t_end] (scipy's Radau with the exact
+    Jacobian F hess H; an event on the domain margin)."""
+    from scipy.integrate import solve_ivp
+
+    from .plant_step import nominal_scale
+
+    u = np.atleast_1d(np.asarray(u, dtype=float))
+
+    def margin(t, eta):
+        return plant.domain_margin(eta)
+    margin.terminal = True                                   # type: ignore[attr-defined]
+    margin.direction = -1                                    # type: ignore[attr-defined]
+    scale = np.maximum(np.abs(np.asarray(eta0, dtype=float)), nominal_scale(plant))
+    sol = solve_ivp(lambda t, eta: plant.f(eta, u), (0.0, t_end), np.asarray(eta0, dtype=float), method="Radau",
+                    rtol=rtol, atol=rtol * scale, jac=lambda t, eta: plant.jacobian(eta), events=margin)
+    if sol.status == 1 and len(sol.t_events[0]):
+        return float(sol.t_events[0][0])
+    if not sol.success:
+        return float(sol.t[-1])
+    return None

@@ -117,6 +117,39 @@ def default_initial_state(device: Device) -> tuple[float, ...]:
     return tuple(eta.tolist())
 
 
+def holding_input(device: Device, eta: Sequence[float]) -> tuple[float, ...]:
+    """The input that holds the electrical state at eta: x_e' = (J_e - R_e) Psi(q) x_e + G_e u = 0 (the x_e-row
+    of eq. open-loop elecmech), u = G_e^-1 (R_e - J_e) Psi(q) x_e."""
+    plant = device.plant()
+    q, _, x_e = plant.split(np.asarray(eta, dtype=float))
+    u = np.linalg.solve(plant.G_e, (plant.R_e - plant.J_e) @ plant.Psi(q) @ x_e)
+    return tuple(float(v) for v in u)
+
+
+def default_experiment(device: Device, eta: Sequence[float], experiment: Sequence[float] = DEFAULT_EXPERIMENT
+                       ) -> tuple[tuple[float, ...], tuple[float, float, float]]:
+    """(input start, DefaultExperiment) of a device's plant FMU that starts at eta, such that the FMU run on its
+    own (fmpy simulate) stays inside the admissible domain: the input that holds x_e where the open loop is
+    stable there (every eigenvalue of F hess H with Re < 0); else u = 0 if the open loop stays inside over the
+    experiment (components.monolithic.open_loop_exit); else u = 0 and the stop time half the time it takes to
+    leave. (An unstable open loop leaves an equilibrium held by its own input through rounding: the solenoid
+    of examples/ pulled in after 0.17 s of fmpy simulate; with u = 0 the bar of examples/ tilts into a magnet
+    after 0.88 s.)"""
+    from components.monolithic import open_loop_exit
+
+    plant = device.plant()
+    start, stop, step = (float(v) for v in experiment)
+    held = holding_input(device, eta)
+    if np.max(np.linalg.eigvals(plant.jacobian(np.asarray(eta, dtype=float))).real) < 0:
+        return held, (start, stop, step)
+    zero = (0.0,) * device.n_e
+    leaves = open_loop_exit(plant, eta, np.zeros(device.n_e), stop - start)
+    if leaves is None:
+        return zero, (start, stop, step)
+    stop = start + float(f"{0.5 * leaves:.2g}")
+    return zero, (start, stop, min(step, (stop - start) / 100))
+
+
 def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = None,
                          module_name: str = __name__) -> dict[str, type]:
     """The slave classes of a device module's FMUs, by model identifier: the plant <name> (PlantSlave) and one
@@ -124,8 +157,9 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
 
     The module defines DEVICE or device(designs) (module_device) and may define INITIAL_STATE (q_0, p_0, x_e_0; default:
     default_initial_state) and EXPERIMENT ((start, stop, step) of every FMU's DefaultExperiment; default
-    DEFAULT_EXPERIMENT). The plant's inputs start at 0; a controller's inputs start at the plant's initial
-    state and, tracking, the jet of the constant reference q* = q_0."""
+    DEFAULT_EXPERIMENT; `default_experiment` keeps the plant FMU's own run inside its domain and chooses its
+    input start); a controller's inputs start at the plant's initial state and, tracking, the jet of the
+    constant reference q* = q_0."""
     device = module_device(module, designs)
     chosen = list(device.designs) if designs is None else list(designs)
     unknown = [d for d in chosen if d not in device.designs]
@@ -135,11 +169,11 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
     if len(initial) != len(device.states):
         raise ValueError(f"{device.name}: INITIAL_STATE has {len(initial)} entries, expected {len(device.states)} "
                          f"({', '.join(v.name for v in device.states)})")
-    experiment = tuple(float(v) for v in getattr(module, "EXPERIMENT", DEFAULT_EXPERIMENT))
+    u_0, experiment = default_experiment(device, initial, getattr(module, "EXPERIMENT", DEFAULT_EXPERIMENT))
     u_names = ", ".join(v.name for v in device.u)
     classes = {device.name: type(device.name, (PlantSlave,), {
         "model_identifier": device.name, "experiment": experiment, "device": device, "initial_state": initial,
-        "input_start": 0.0 if device.n_e == 1 else (0.0,) * device.n_e, "__module__": module_name,
+        "input_start": u_0[0] if device.n_e == 1 else u_0, "__module__": module_name,
         "summary": f"{device.description}: inputs {u_names}, outputs the states and the energy H"})}
     q0 = initial[:device.n_m]
     for name in chosen:

@@ -108,10 +108,12 @@ def test_each_fmu_runs_alone_as_cs_and_me(device_fmus, identifier):
                          relative_tolerance=1e-9) for t in ("CoSimulation", "ModelExchange")]
     for r in runs:
         assert len(r) > 10 and all(np.all(np.isfinite(r[n])) for n in r.dtype.names)
-    if identifier == "TwoAxis":                                   # open loop from INITIAL_STATE, u = 0
+    if identifier == "TwoAxis":                                   # open loop from INITIAL_STATE, u at its start
         eta0 = np.array([0.05, 0.1, 0.0, 0.0, 1.0, 1.0])
+        md = read_model_description(str(device_fmus[identifier]))
+        u0 = np.array([float(v.start) for v in md.modelVariables if v.causality == "input"])   # default_experiment's
         P = truth_plant()
-        sol = solve_ivp(lambda t, x: P.f(x, np.zeros(2)), (0, 0.2), eta0, method="Radau", rtol=1e-11, atol=1e-11)
+        sol = solve_ivp(lambda t, x: P.f(x, u0), (0, 0.2), eta0, method="Radau", rtol=1e-11, atol=1e-11)
         for r, tol in zip(runs, (1e-7, 1e-6)):                   # doStep's rtol 1e-8 (1e-9); CVode's 1e-9
             got = np.array([r[n][-1] for n in STATES])
             assert np.max(np.abs(got - sol.y[:, -1]) / (1 + np.abs(sol.y[:, -1]))) < tol

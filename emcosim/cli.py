@@ -64,9 +64,16 @@ def main(argv: list[str] | None = None) -> int:
 
     tempdirs.clean_stale()                         # unpacked FMUs of killed runs
     try:
-        # the sweep's client runs no FMU: a signal may stop it at once; elsewhere between two steps
-        with stopping.on_signals(graceful=args.command != "sweep"):
-            return args.func(args)
+        # the sweep's client and the plant commands run no FMU: a signal may stop them at once; elsewhere
+        # between two steps
+        with stopping.on_signals(graceful=args.command not in ("sweep", "plant")):
+            status = args.func(args)
+            signum = stopping.requested()
+        if signum is not None:                     # a command that never stopped to look: it ran to its end
+            name = "SIGTERM" if signum == 15 else "SIGINT"
+            print(f"emcosim: interrupted by {name} (the command finished before it could stop)", file=sys.stderr)
+            return 128 + signum
+        return status
     except Interrupted as exc:                     # stopped between two communication points
         print(f"emcosim: error: {error_line(exc)}", file=sys.stderr)
         return 128 + exc.signal

@@ -295,13 +295,17 @@ def _model_description(alias: str, module: str | None, identifier: str, resource
 def _write_fmu(target: Path, files: dict[str, bytes]) -> None:
     """A zip archive with sorted entries, fixed timestamps and permissions (reproducible)."""
     tmp = target.with_suffix(".fmu.tmp")
-    with zipfile.ZipFile(tmp, "w") as zout:
-        for name in sorted(files):
-            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = (0o755 if name.startswith("binaries/") else 0o644) << 16
-            zout.writestr(info, files[name])
-    tmp.replace(target)
+    try:
+        with zipfile.ZipFile(tmp, "w") as zout:
+            for name in sorted(files):
+                info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = (0o755 if name.startswith("binaries/") else 0o644) << 16
+                zout.writestr(info, files[name])
+        tmp.replace(target)
+    except BaseException:                        # an error or Ctrl-C: no half-written archive is left
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def repack(src: Path, dest: Path) -> None:

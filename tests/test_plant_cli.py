@@ -83,3 +83,52 @@ def test_scenario_of_a_design_that_does_not_apply_is_refused(tmp_path, capsys):
     assert main(args) == 1
     assert "no design 'Theorem3'" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_ctrl_c_during_plant_build_exits_130_and_leaves_no_half_written_fmu(tmp_path, monkeypatch, capsys):
+    """A SIGINT while the FMUs are written (here: inside the first archive's write) stops the build at once
+    with exit 130; no .fmu.tmp is left and the FMU being written is not there."""
+    import os
+    import signal
+
+    from fmus import build
+
+    original = build._write_fmu
+    calls = []
+
+    def write_then_interrupt(target, files):
+        calls.append(target)
+        original(target.with_suffix(".probe"), files)            # prove the write path works, then
+        os.kill(os.getpid(), signal.SIGINT)                       # the user presses Ctrl-C in the middle
+        original(target, files)
+
+    monkeypatch.setattr(build, "_write_fmu", write_then_interrupt)
+    out = tmp_path / "fmus"
+    assert main(["plant", "build", str(SOLENOID), "--out", str(out)]) == 130
+    assert "interrupted by SIGINT" in capsys.readouterr().err
+    assert calls and not calls[0].exists() and not list(out.glob("*.fmu.tmp"))
+
+
+def test_a_signal_a_command_never_looked_at_still_makes_it_exit_nonzero(monkeypatch, capsys):
+    """A command that runs to its end without checking for a stop (graceful handling records the signal)
+    does not exit 0 after Ctrl-C: it says so and exits 128 + signal."""
+    import os
+    import signal
+
+    from emcosim import cli
+
+    def info_then_signal(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return 0
+
+    parser = cli._parser
+    monkeypatch.setattr(cli, "_parser", lambda: _with_func(parser(), "info", info_then_signal))
+    assert main(["info"]) == 128 + signal.SIGTERM
+    assert "finished before it could stop" in capsys.readouterr().err
+
+
+def _with_func(parser, command, func):
+    """`parser` with `func` as the command's function (set_defaults binds it when the parser is made)."""
+    for action in parser._subparsers._group_actions:
+        action.choices[command].set_defaults(func=func)
+    return parser

@@ -115,8 +115,20 @@ def initial_state(device: Device, setup: Setup, controller) -> np.ndarray:
     return eta
 
 
-def _doc(unit: str | None, text: str) -> str:
+def parameter_doc(unit: str | None, text: str) -> str:
+    """A parameter's description for the comment before it in an .ssv: the text and, unless it has none or
+    is "1", its unit in brackets."""
     return f"{text} [{unit}]" if unit and unit != "1" else text
+
+
+def reference_parameters(kind: int, values: Mapping[str, float]) -> list[Parameter]:
+    """The Reference FMU's parameter set: its kind (0 constant, 1 sinusoid, 2 smooth step) and that kind's
+    parameters with their units and descriptions (components.catalog.REFERENCE_PARAMETERS)."""
+    specs = catalog.REFERENCE_PARAMETERS
+    params = [Parameter("kind", "Integer", int(kind), None, "0 constant, 1 sinusoid, 2 smooth step")]
+    return params + [Parameter(k, "Real", float(x), specs[k].unit,
+                               parameter_doc(specs[k].unit, specs[k].description))
+                     for k, x in values.items() if k != "kind"]
 
 
 def scenario_files(device: Device, setup: Setup, fmu_dir: str) -> dict[str, str]:
@@ -201,24 +213,21 @@ def _parameter_sets(device: Device, setup: Setup, gains: Mapping[str, float], et
     """plant.ssv (parameters, initial state, rtol), controller.ssv (its model of the plant, gains) and one
     reference_<q_i>.ssv per tracked position."""
     design = device.designs[setup.design]
-    plant = [Parameter(p.name, "Real", float(p.default), p.unit, _doc(p.unit, p.description))
+    plant = [Parameter(p.name, "Real", float(p.default), p.unit, parameter_doc(p.unit, p.description))
              for p in device.parameters.values()]
-    start = [Parameter(f"{v.name}_0", "Real", float(x), v.unit, _doc(v.unit, f"initial value of {v.name}: {v.description}"))
+    start = [Parameter(f"{v.name}_0", "Real", float(x), v.unit,
+                       parameter_doc(v.unit, f"initial value of {v.name}: {v.description}"))
              for v, x in zip(device.states, eta_0)]
     rtol = Parameter("rtol", "Real", PLANT_RTOL, None, "relative tolerance of the plant's internal integrator")
     controller = [Parameter(p.name, p.type, p.value, p.unit, f"plant parameter (same as plant.ssv): {p.description}")
                   for p in plant]
-    controller += [Parameter(k, "Real", v, design.gains[k].unit, _doc(design.gains[k].unit, design.gains[k].description))
+    controller += [Parameter(k, "Real", v, design.gains[k].unit, parameter_doc(design.gains[k].unit, design.gains[k].description))
                    for k, v in gains.items()]
     files = {"plant.ssv": parameter_set_xml(PARAMETER_SET, plant + start + [rtol]),
              "controller.ssv": parameter_set_xml(PARAMETER_SET, controller)}
     codes = {kind: code for code, kind in catalog.REFERENCE_KINDS.items()}
-    specs = catalog.REFERENCE_PARAMETERS
     for v, spec in zip(device.q, setup.references if design.tracking else ()):
-        kind = codes[spec.get("kind", "sinusoid")]
-        params = [Parameter("kind", "Integer", kind, None, "0 constant, 1 sinusoid, 2 smooth step")]
-        params += [Parameter(k, "Real", float(x), specs[k].unit, _doc(specs[k].unit, specs[k].description))
-                   for k, x in spec.items() if k != "kind"]
+        params = reference_parameters(codes[spec.get("kind", "sinusoid")], spec)
         files[f"reference_{v.name}.ssv"] = parameter_set_xml(PARAMETER_SET, params)
     return files
 

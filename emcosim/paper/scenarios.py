@@ -19,6 +19,7 @@ from pathlib import Path
 from components import catalog, maglev, mems
 from components.references import Sinusoid
 
+from ..devices.scenario import parameter_doc, reference_parameters
 from ..engine.ssd import PARAMETER_SET, Component, Connection, Connector, Parameter, Scenario
 from ..engine.ssd_writer import parameter_set_xml, system_structure_xml
 
@@ -152,10 +153,6 @@ def _plant_parameters(case: Case) -> list[Parameter]:
             for p in module.PARAMETERS.values()]
 
 
-def _doc(unit: str, text: str) -> str:
-    return f"{text} [{unit}]" if unit and unit != "1" else text
-
-
 def scenario_files(case: Case) -> dict[str, str]:
     """File name -> text for scenarios/<case.name>/."""
     plant_state = MEMS_ETA0 if case.plant == "MEMS" else maglev_initial_state()
@@ -172,17 +169,13 @@ def scenario_files(case: Case) -> dict[str, str]:
     controller_params = [Parameter(p.name, p.type, p.value, p.unit, f"plant parameter (same as plant.ssv): {p.description}")
                          for p in _plant_parameters(case)]
     gains = catalog.GAINS[case.controller]
-    controller_params += [Parameter(k, "Real", float(v), gains[k].unit, _doc(gains[k].unit, gains[k].description))
+    controller_params += [Parameter(k, "Real", float(v), gains[k].unit, parameter_doc(gains[k].unit, gains[k].description))
                           for k, v in case.gains.items()]
     tracking = case.reference is not None
     components = []
     files = {}
     if tracking:
-        specs = catalog.REFERENCE_PARAMETERS
-        ref_params = [Parameter("kind", "Integer", int(case.reference["kind"]), None,
-                                "0 constant, 1 sinusoid, 2 smooth step")]
-        ref_params += [Parameter(k, "Real", float(v), specs[k].unit, _doc(specs[k].unit, specs[k].description))
-                       for k, v in case.reference.items() if k != "kind"]
+        ref_params = reference_parameters(int(case.reference["kind"]), case.reference)
         files["reference.ssv"] = parameter_set_xml(PARAMETER_SET, ref_params)
         components.append(Component("reference", Path(f"{FMU_DIR}/Reference.fmu"),
                                     [Connector(n, "output", "Real") for n in REFERENCE_OUT],

@@ -17,10 +17,14 @@ DESCRIPTION_RESOURCE = "resources/emcosim_description.toml"   # where `emcosim p
 def load(path: str | Path, q_d=None, reference=None, horizon: float | None = None):
     """(description, check report, device) of a description file; the device has the designs the check
     finds applicable. DescriptionError (a ValueError) names a wrong entry."""
-    from components import codegen, plant_check
     from components import description as descriptions
 
-    desc = descriptions.load(path)
+    return _checked(descriptions.load(path), q_d, reference, horizon)
+
+
+def _checked(desc, q_d=None, reference=None, horizon: float | None = None):
+    from components import codegen, plant_check
+
     report = plant_check.check(desc, q_d=q_d, reference=reference, horizon=horizon)
     return desc, report, codegen.device(desc, list(report.designs))
 
@@ -29,12 +33,15 @@ def register_description(path: str | Path) -> Device:
     """Load a description and register its device (components.catalog.register). A device of that name
     already registered is returned if it is the same (parameters, variables, designs); another one of the same
     name is refused (ValueError)."""
-    desc, _, device = load(path)
+    return _register(*load(path))
+
+
+def _register(desc, _report, device: Device) -> Device:
     known = catalog.DEVICES.get(desc.name)
     if known is not None:
         if _signature(known) == _signature(device):
             return known
-        raise ValueError(f"{path}: a different device named {desc.name!r} is already known; rename it (name = ...)")
+        raise ValueError(f"{desc.source}: a different device named {desc.name!r} is already known; rename it (name = ...)")
     catalog.register(device)
     return device
 
@@ -53,9 +60,6 @@ def register_fmu(fmu: str | Path) -> Device | None:
             text = z.read(DESCRIPTION_RESOURCE).decode("utf-8")
     except (OSError, zipfile.BadZipFile, UnicodeDecodeError):
         return None
-    import tempfile
+    from components import description as descriptions
 
-    with tempfile.TemporaryDirectory(prefix="emcosim_description_") as tmp:
-        path = Path(tmp) / f"{Path(fmu).stem.split('_')[0]}.toml"
-        path.write_text(text)
-        return register_description(path)
+    return _register(*_checked(descriptions.parse(text, f"{fmu}:{DESCRIPTION_RESOURCE}")))

@@ -1098,12 +1098,12 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
 #define BEGIN(function, forward)                                                                          \
     Instance *instance = lookup(c, #function);                                                            \
     if (instance == NULL) return fmi2Error;                                                               \
-    if (instance->slave == NULL) return ({                                                                \
+    if (instance->slave == NULL) {                                                                        \
         instance->busy++;                                                                                 \
         fmi2Status forwarded_ = (forward);                                                                \
         instance->busy--;                                                                                 \
-        forwarded_;                                                                                       \
-    });
+        return forwarded_;                                                                                \
+    }
 
 #define NULL_ARRAYS(function, condition)                                                                  \
     if (condition) {                                                                                      \

@@ -21,8 +21,9 @@ import pytest
 from .c_host import (
     CALLS_SOURCE,
     GUARD_SOURCE,
+    SANITIZE,
     compile_c_host,
-    compile_sanitized_loader,
+    compile_test_loader,
     extract,
     run_calls,
     run_guard,
@@ -102,6 +103,15 @@ def test_illegal_calls_of_both_state_machines_are_refused(c_guard, fmus, tmp_pat
     assert run.stderr.count("fmi2FreeInstance called with an unknown or freed instance") == 2 + 1
 
 
+@pytest.mark.parametrize("cc", ["gcc", "clang"])
+def test_loader_is_c99_and_warning_free(cc, tmp_path):
+    """The loader compiles as C99 (-std=c99, POSIX) with -Wall -Wextra -Werror under gcc and clang (skipped
+    where clang is not installed: apt-get install clang)."""
+    if shutil.which(cc) is None:
+        pytest.skip(f"needs {cc}")
+    assert compile_test_loader(tmp_path / "loader.so", ["-std=c99", "-D_GNU_SOURCE", "-O2"], cc) is None
+
+
 # ---- AddressSanitizer and UndefinedBehaviorSanitizer ----------------------------------------------------
 @pytest.fixture(scope="module")
 def sanitized(tmp_path_factory, fmus) -> dict[str, Path]:
@@ -110,7 +120,7 @@ def sanitized(tmp_path_factory, fmus) -> dict[str, Path]:
     and the LeakSanitizer suppressions."""
     work = tmp_path_factory.mktemp("sanitized")
     folder, _ = extract(fmus["MEMS"], work)
-    reason = compile_sanitized_loader(folder / "binaries" / "linux64" / "MEMS.so")
+    reason = compile_test_loader(folder / "binaries" / "linux64" / "MEMS.so", SANITIZE + ["-O1"])
     hosts = {"guard": work / "c_guard", "calls": work / "c_calls"}
     for name, source in (("guard", GUARD_SOURCE), ("calls", CALLS_SOURCE)):
         reason = reason or compile_c_host(hosts[name], source, sanitize=True)

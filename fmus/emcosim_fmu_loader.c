@@ -32,8 +32,9 @@
  *     instance, every pointer (NULL with a count > 0), and every count against the FMU's own numbers, which
  *     the slave tells at fmi2Instantiate (fmi2_get_sizes): nx and ni must equal the numbers of continuous
  *     states and event indicators (FMI 2.0 fixes them), nvr, nUnknown and nKnown may not exceed the number
- *     of variables of the call's type (none for Boolean and String), a serialized state's size must be the
- *     length its header states (fmus/state.py). A wrong count gets fmi2Error and one message; nothing of
+ *     of variables of the call's type (none for Boolean and String; the derivative functions: times
+ *     maxOutputDerivativeOrder, or INPUT_ORDERS_PER_CALL for input derivatives), a serialized state's size
+ *     must be the length its header states (fmus/state.py). A wrong count gets fmi2Error and one message; nothing of
  *     the host's arrays is read. (No FMU can see the length of a host's array: a count within these
  *     bounds is trusted.) The value references themselves and the state machine are checked by the slave,
  *     before any value is used.
@@ -159,6 +160,7 @@ typedef struct {
     VrCache set_vrs, get_vrs;
     size_t nx, ni;                           /* the FMU's continuous states and event indicators (fmi2_get_sizes) */
     size_t n_reals, n_integers;              /* its Real and Integer variables */
+    size_t max_output_order;                 /* its maxOutputDerivativeOrder */
     PyObject **states;                       /* the FMU states this instance gave out (strong references) */
     size_t n_states, cap_states;
 } Instance;
@@ -908,21 +910,22 @@ static fmi2Status copy_values(Instance *instance, const char *function, Answer a
 static fmi2Status take_sizes(Instance *instance)
 {
     Answer answer = ask(instance, "fmi2Instantiate", NULL, "fmi2_get_sizes", NULL, 0, 3);
-    long sizes[4] = {-1, -1, -1, -1};
-    for (int i = 0; answer.status <= fmi2Warning && answer.value != NULL && i < 4; i++)
+    long sizes[5] = {-1, -1, -1, -1, -1};
+    for (int i = 0; answer.status <= fmi2Warning && answer.value != NULL && i < 5; i++)
         sizes[i] = py.PyLong_AsLong(py.PyTuple_GetItem(answer.value, i));
     py.PyErr_Clear();
     clear(&answer.value);
     if (answer.status > fmi2Warning) return answer.status;
-    for (int i = 0; i < 4; i++)
+    for (int i = 0; i < 5; i++)
         if (sizes[i] < 0) {
-            emitf(instance, fmi2Error, "fmi2Instantiate: the slave's fmi2_get_sizes did not answer four counts");
+            emitf(instance, fmi2Error, "fmi2Instantiate: the slave's fmi2_get_sizes did not answer five counts");
             return fmi2Error;
         }
     instance->nx = (size_t)sizes[0];
     instance->ni = (size_t)sizes[1];
     instance->n_reals = (size_t)sizes[2];
     instance->n_integers = (size_t)sizes[3];
+    instance->max_output_order = (size_t)sizes[4];
     return fmi2OK;
 }
 
@@ -1118,6 +1121,13 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
         emitf(instance, fmi2Error, #function ": " __VA_ARGS__);                                           \
         return fmi2Error;                                                                                 \
     }
+
+/* Input derivatives: FMI 2.0 sets no highest order and the FMUs accept every order >= 1 (fmus/derivatives.py);
+ * masters send their sources' maxOutputDerivativeOrder, 1 to 3 in practice. More entries in one call than this
+ * many per Real variable are refused as a count that cannot be the array's. */
+#define INPUT_ORDERS_PER_CALL 16
+#define STRING_(x) #x
+#define STRING(x) STRING_(x)
 
 /* nvr of a call on `n` variables of `type`: at most n (a host's duplicates beyond that are refused too). */
 #define VR_COUNT(function, nvr, n, type)                                                                  \
@@ -1448,7 +1458,9 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference
 {
     BEGIN(fmi2SetRealInputDerivatives, unsupported(instance, "fmi2SetRealInputDerivatives"))
     NULL_ARRAYS(fmi2SetRealInputDerivatives, nvr > 0 && (vr == NULL || order == NULL || value == NULL))
-    VR_COUNT(fmi2SetRealInputDerivatives, nvr, instance->n_reals, "Real")
+    COUNT(fmi2SetRealInputDerivatives, nvr > INPUT_ORDERS_PER_CALL * instance->n_reals,
+          "%zu entries, more than " STRING(INPUT_ORDERS_PER_CALL) " orders for each of this FMU's %zu Real variables",
+          nvr, instance->n_reals)
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[3] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr), list_of_reals(value, nvr)};
     Answer answer = ask(instance, "fmi2SetRealInputDerivatives", NULL, "fmi2_set_real_input_derivatives", args, 3, 2);
@@ -1461,7 +1473,9 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 {
     BEGIN(fmi2GetRealOutputDerivatives, unsupported(instance, "fmi2GetRealOutputDerivatives"))
     NULL_ARRAYS(fmi2GetRealOutputDerivatives, nvr > 0 && (vr == NULL || order == NULL || value == NULL))
-    VR_COUNT(fmi2GetRealOutputDerivatives, nvr, instance->n_reals, "Real")
+    COUNT(fmi2GetRealOutputDerivatives, nvr > instance->n_reals * instance->max_output_order, "%zu entries, more "
+          "than this FMU's %zu Real variables times its maxOutputDerivativeOrder %zu", nvr, instance->n_reals,
+          instance->max_output_order)
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[2] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr)};
     Answer answer = ask(instance, "fmi2GetRealOutputDerivatives", NULL, "fmi2_get_real_output_derivatives", args, 2, 3);

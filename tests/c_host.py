@@ -39,8 +39,11 @@ def compile_c_host(exe: Path, source: Path = SOURCE, sanitize: bool = False) -> 
     import fmpy
 
     flags = SANITIZE + ["-O1"] if sanitize else ["-O2"]
-    subprocess.run(["gcc", *flags, "-Wall", "-Wextra", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"),
-                    str(source), "-o", str(exe), "-ldl", "-lm", "-lpthread"], check=True, capture_output=True)
+    run = subprocess.run(["gcc", *flags, "-Wall", "-Wextra", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"),
+                          str(source), "-o", str(exe), "-ldl", "-lm", "-lpthread"], capture_output=True, text=True)
+    if run.returncode != 0 and sanitize:
+        return f"gcc cannot build with {' '.join(SANITIZE)} here: {run.stderr[-500:]}"
+    run.check_returncode()
     return None
 
 

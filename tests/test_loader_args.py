@@ -13,7 +13,9 @@ in the host is reported, so the check can fail.
 """
 from __future__ import annotations
 
+import math
 import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -22,11 +24,13 @@ from .c_host import (
     CALLS_SOURCE,
     GUARD_SOURCE,
     SANITIZE,
+    THREADS_SOURCE,
     compile_c_host,
     compile_test_loader,
     extract,
     run_calls,
     run_guard,
+    threads_command,
 )
 
 # LeakSanitizer stays on for the loader's own allocations. The interpreter the loader starts is never finalized
@@ -115,19 +119,23 @@ def test_loader_is_c99_and_warning_free(cc, tmp_path):
 # ---- AddressSanitizer and UndefinedBehaviorSanitizer ----------------------------------------------------
 @pytest.fixture(scope="module")
 def sanitized(tmp_path_factory, fmus) -> dict[str, Path]:
-    """The plant FMU extracted with its loader built under the sanitizers, the guard host and the host of
-    tests/fixtures/c_calls.c built under them too (so libasan is loaded first, as it must be: no LD_PRELOAD),
-    and the LeakSanitizer suppressions."""
+    """The plant and a controller FMU extracted with their loader built under the sanitizers, the hosts of
+    tests/fixtures/c_guard.c, c_calls.c and c_threads.c built under them too (so libasan is loaded first, as
+    it must be: no LD_PRELOAD), and the LeakSanitizer suppressions."""
     work = tmp_path_factory.mktemp("sanitized")
     folder, _ = extract(fmus["MEMS"], work)
-    reason = compile_test_loader(folder / "binaries" / "linux64" / "MEMS.so", SANITIZE + ["-O1"])
-    hosts = {"guard": work / "c_guard", "calls": work / "c_calls"}
-    for name, source in (("guard", GUARD_SOURCE), ("calls", CALLS_SOURCE)):
+    controller, _ = extract(fmus["MEMS_Proposition1"], work)
+    loader = folder / "binaries" / "linux64" / "MEMS.so"
+    reason = compile_test_loader(loader, SANITIZE + ["-O1"])
+    if reason is None:
+        shutil.copy2(loader, controller / "binaries" / "linux64" / "MEMS_Proposition1.so")
+    hosts = {"guard": work / "c_guard", "calls": work / "c_calls", "threads": work / "c_threads"}
+    for name, source in (("guard", GUARD_SOURCE), ("calls", CALLS_SOURCE), ("threads", THREADS_SOURCE)):
         reason = reason or compile_c_host(hosts[name], source, sanitize=True)
     if reason:
         pytest.skip(reason)
     (work / "lsan.supp").write_text(LEAK_SUPPRESSIONS)
-    return {"folder": folder, **hosts, "suppressions": work / "lsan.supp"}
+    return {"folder": folder, "controller": controller, **hosts, "suppressions": work / "lsan.supp"}
 
 
 def _sanitizer_env(sanitized) -> dict[str, str]:
@@ -165,6 +173,17 @@ def test_bad_calls_and_a_logger_that_calls_back_under_sanitizers(sanitized):
         run, lines = run_calls(sanitized["calls"], folder, calls, env=_sanitizer_env(sanitized))
         assert run.returncode == 0 and not _findings(run.stderr), run.stderr[-4000:]
         assert ["free"] in lines, lines
+
+
+def test_two_fmus_instantiated_at_once_from_two_threads_under_sanitizers(sanitized):
+    """tests/test_c_host.py's race (issue 26, item 7: two FMUs start Python from two threads at once), 3
+    rounds, under the sanitizers: no finding, every round of both threads fmi2OK with a finite output."""
+    command = threads_command(sanitized["threads"], [sanitized["folder"], sanitized["controller"]], ["q", "u"], 3)
+    env = [f"{k}={v}" for k, v in _sanitizer_env(sanitized).items()]
+    run = subprocess.run([*command[:2], *env, *command[2:]], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and not _findings(run.stderr), run.stderr[-4000:]
+    rounds = [line.split() for line in run.stdout.splitlines() if line.startswith("round")]
+    assert len(rounds) == 6 and all(r[4] == "0" and math.isfinite(float(r[5])) for r in rounds), rounds
 
 
 def test_sanitizer_reports_a_read_past_an_array(sanitized):

@@ -34,10 +34,10 @@
  *     states and event indicators (FMI 2.0 fixes them), nvr, nUnknown and nKnown may not exceed the number
  *     of variables of the call's type (none for Boolean and String; the derivative functions: times
  *     maxOutputDerivativeOrder, or INPUT_ORDERS_PER_CALL for input derivatives), a serialized state's size
- *     must be the length its header states (fmus/state.py). A wrong count gets fmi2Error and one message; nothing of
- *     the host's arrays is read. (No FMU can see the length of a host's array: a count within these
- *     bounds is trusted.) The value references themselves and the state machine are checked by the slave,
- *     before any value is used.
+ *     must be the length its header states (fmus/state.py). A wrong count gets fmi2Error and one message;
+ *     nothing of the host's arrays is read. (No FMU can see the length of a host's array: a count within
+ *     these bounds is trusted.) The value references themselves and the state machine are checked by the
+ *     slave, before any value is used.
  *
  * The interpreter the loader starts is never finalized: Py_Finalize at process exit is what crashed C
  * hosts before (docs/reliability.md, finding 1), other FMUs of the process may still use it, and numpy

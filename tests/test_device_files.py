@@ -176,6 +176,14 @@ def test_plant_build_refuses_an_fmu_name_that_is_a_link(tmp_path, capsys):
     assert victim.read_text() == "setting = 1\n" and {p.name for p in out.iterdir()} == {"Solenoid_Theorem2.fmu"}
 
 
+def test_plant_build_into_a_file_is_refused_before_the_build(tmp_path, capsys):
+    out = tmp_path / "fmus"
+    out.write_text("a file")
+    status, err = run(["plant", "build", str(SOLENOID), "--out", str(out)], capsys)
+    assert status == 1 and "is not a folder" in err.splitlines()[-1], err
+    assert out.read_text() == "a file"
+
+
 def test_a_device_named_reference_is_refused(tmp_path, capsys):
     """Its plant FMU Reference.fmu used to be replaced by the reference generator built beside it."""
     desc = tmp_path / "reference.toml"

@@ -158,6 +158,8 @@ def build_fmus_of(desc, designs: list[str], out: Path) -> dict[str, Path]:
     from .registry import DESCRIPTION_RESOURCE
 
     names = [desc.name] + [f"{desc.name}_{d}" for d in designs] + ["Reference"]
+    if out.exists() and not out.is_dir():
+        raise ScenarioError(f"{out}: exists and is not a folder; --out names the folder for the FMUs")
     if out.is_dir():
         for name in names:                           # before the build: no minutes spent on a refusal
             check_destination(out / f"{name}.fmu")

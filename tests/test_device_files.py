@@ -273,3 +273,51 @@ def test_a_killed_plant_build_leaves_nothing_the_next_command_does_not_remove(tm
     monkeypatch.setattr(tempfile, "tempdir", str(tmpdir))      # the next command, in the same $TMPDIR
     assert main(["info"]) == 0
     assert list(tmpdir.iterdir()) == []
+
+
+# ---- the engine's side, generic: toy FMUs (no physics) that declare devices ---------------------------
+
+def _declaring(name: str, model: str = "m1", role: str = "plant") -> str:
+    return f'<Tool name="org.emcosim.device"><Device name="{name}" model="{model}" role="{role}"/></Tool>'
+
+
+def _toy_loop(make, plant: str | None, ctrl: str | None, plant_order: float = 3.0):
+    """The x' = -x loop of toy FMUs (tests/toy_fmus.py), each optionally declaring a device; both have a
+    parameter input_order (the controller's stays 3)."""
+    from .helpers import DYNAMIC, STATIC
+
+    return make([("plant", "dynamic", DYNAMIC, True, 3, plant), ("ctrl", "static", STATIC, True, 3, ctrl)],
+                [("plant.x", "ctrl.u1"), ("ctrl.y", "plant.u")],
+                {"ctrl": {"k1": -1.0}, "plant": {"x0": 1.0, "input_order": plant_order}})
+
+
+def test_the_engine_compares_declared_devices_of_any_fmu(make):
+    """The engine reads only the declarations: two toy FMUs of devices A and B are refused; of one device,
+    a same-named parameter with two values is a note (warnings and Result.notes), with one value none."""
+    from emcosim.engine.master import simulate
+
+    with pytest.raises(ScenarioError, match="'A'.*'B'.*different devices"):
+        simulate(_toy_loop(make, _declaring("A"), _declaring("B", role="controller")), record=["plant.x"])
+    with pytest.raises(ScenarioError, match="two different models of device 'A'"):
+        simulate(_toy_loop(make, _declaring("A"), _declaring("A", "m2", "controller")), record=["plant.x"])
+    r = simulate(_toy_loop(make, _declaring("A"), _declaring("A", role="controller"), plant_order=2.0),
+                 record=["plant.x"])
+    note = "plant.input_order = 2.0, but the controller 'ctrl' models it with ctrl.input_order = 3.0 (device 'A')"
+    assert len(r.notes) == 1 and r.notes[0].startswith(note) and r.notes[0] in r.warnings, r.warnings
+    r = simulate(_toy_loop(make, _declaring("A"), _declaring("A", role="controller")), record=["plant.x"])
+    assert r.notes == [] and r.warnings == []
+
+
+@pytest.mark.parametrize("plant, ctrl, warned", [
+    (None, _declaring("B", role="controller"), False),                 # another vendor's FMU: not compared
+    (_declaring("A"), '<Tool name="org.emcosim.device"><Device name="B" role="controller"/></Tool>', True),
+    (_declaring("A"), _declaring("B\u200b", role="controller"), True),               # not printable
+    (_declaring("A"), _declaring("B" * 201, role="controller"), True),
+    (_declaring("A"), '<Tool name="org.emcosim.device"><Other/></Tool>', False)])
+def test_an_fmu_without_a_readable_declaration_is_not_compared(make, plant, ctrl, warned):
+    """FMUs that declare no device (or a declaration that cannot be read: a warning) run as before."""
+    from emcosim.engine.master import simulate
+
+    r = simulate(_toy_loop(make, plant, ctrl, plant_order=2.0), record=["plant.x"])
+    assert r.notes == [] and len(r["plant.x"]) > 1
+    assert [w.startswith("ctrl: ") and "not compared" in w for w in r.warnings] == ([True] if warned else []), r.warnings

@@ -40,6 +40,7 @@ INPUT_DERIVATIVES = "InputDerivatives"
 ORDER_USED = "orderUsed"
 DEVICE_TOOL = "org.emcosim.device"
 DEVICE = "Device"
+MAX_TEXT = 200                        # characters of each attribute of <Device> (they go into messages)
 LIMITLESS = 10**6                     # orderUsed above this: as good as no limit (kept an int of bounded size)
 _DIGITS = re.compile(r"[0-9]+")
 
@@ -67,8 +68,9 @@ def device(fmu: Path) -> tuple[Device | None, str]:
     if element is None:
         return None, ""
     values = [" ".join((element.get(k) or "").split()) for k in ("name", "model", "role")]
-    if not all(values):
-        return None, f"{where}: <{DEVICE}> needs name, model and role: not compared with the FMUs it is connected to"
+    if not all(v and v.isprintable() and len(v) <= MAX_TEXT for v in values):
+        return None, (f"{where}: <{DEVICE}> needs name, model and role, each printable text of at most {MAX_TEXT} "
+                      "characters: not compared with the FMUs it is connected to")
     return Device(*values), ""
 
 

@@ -7,6 +7,12 @@
 check: which of Assumptions 1-4 hold, each with its test, and which designs apply (components.plant_check).
 build: the plant FMU <name>.fmu, one controller FMU <name>_<design>.fmu per design that applies and the
 Reference FMU, into DIR (fmus.build). scenario: an SSP scenario folder (emcosim.devices.scenario).
+
+Their outputs follow the rules of the other commands' (engine/outputs.py, docs/reliability.md): the FMUs are
+built in a marked temporary folder (engine/tempdirs.py: removed by the next command if this one is killed)
+and each is written into DIR beside its name and renamed onto it (never through a link); a scenario folder is
+written whole and replaces only a folder emcosim wrote (engine/output_folder.py); a device named like one of
+the suite's FMUs that would be written into the same folder is refused.
 """
 from __future__ import annotations
 
@@ -15,7 +21,7 @@ import os
 import sys
 from pathlib import Path
 
-from components.device import DESIGNS
+from components.device import DESIGNS, Device
 
 from ..engine.errors import ScenarioError
 
@@ -107,10 +113,12 @@ def cmd_build(args) -> int:
         desc, report, device = registry.load(args.file)
     except ValueError as exc:
         raise _describe(exc) from None
+    out = Path(args.out)
+    check_device_names(device, list(device.designs), out)
     for line in report.not_applicable():                # "<design>: <why>"
         print(f"not built   {device.name}_{line}")
     try:
-        paths = build_fmus_of(desc, list(device.designs), Path(args.out))
+        paths = build_fmus_of(desc, list(device.designs), out)
     except (BuildError, ValueError) as exc:
         raise _describe(exc) from None
     for path in paths.values():
@@ -118,22 +126,58 @@ def cmd_build(args) -> int:
     return 0
 
 
+def check_device_names(device: Device, designs: list[str], out: Path) -> None:
+    """Refuse a device whose FMUs would take the name of one of the suite's own FMUs in `out`: the Reference
+    FMU (built beside every device's) always; the paper's (fmus/models.py) when `out` is the suite's FMU
+    folder (it holds the build stamp, or is fmus.build.default_dest())."""
+    from fmus.build import FMUS, STAMP, default_dest
+
+    names = [device.name] + [device.controller_identifier(d) for d in designs]
+    suite = out.is_dir() and ((out / STAMP).exists() or out.resolve() == default_dest().resolve())
+    taken = [n for n in names if n == "Reference" or (suite and n in FMUS)]
+    if taken:
+        where = "the Reference FMU built beside it" if taken == ["Reference"] else f"the suite's FMUs in {out}"
+        raise ScenarioError(f"device {device.name!r}: its FMU {taken[0]}.fmu would replace {where}; "
+                            "rename the device (its description's name) or build into another folder")
+
+
 def build_fmus_of(desc, designs: list[str], out: Path) -> dict[str, Path]:
     """The plant FMU, the controller FMUs of `designs` and the Reference FMU of a description, into `out`
     (fmus.build.build_description: the generated model module, no sympy at run time); every FMU carries the
-    description as registry.DESCRIPTION_RESOURCE, by which `certify` knows the device."""
+    description as registry.DESCRIPTION_RESOURCE, by which `certify` knows the device.
+
+    Built in a marked temporary folder of this process (engine/tempdirs.py), then each FMU is written into
+    `out` by engine/outputs.write_file (a new file beside its name, renamed onto it: a link in `out` is never
+    written through; a link in the FMU's own name is refused before anything is built)."""
     import shutil
-    import tempfile
 
     from fmus.build import build_description, build_fmus
 
+    from ..engine import tempdirs
+    from ..engine.outputs import check_destination, write_file
     from .registry import DESCRIPTION_RESOURCE
 
-    with tempfile.TemporaryDirectory(prefix="emcosim_plant_") as tmp:
-        copy = Path(tmp) / Path(DESCRIPTION_RESOURCE).name
+    names = [desc.name] + [f"{desc.name}_{d}" for d in designs] + ["Reference"]
+    if out.exists() and not out.is_dir():
+        raise ScenarioError(f"{out}: exists and is not a folder; --out names the folder for the FMUs")
+    if out.is_dir():
+        for name in names:                           # before the build: no minutes spent on a refusal
+            check_destination(out / f"{name}.fmu")
+    work = tempdirs.make("plant_build")
+    try:
+        copy = work / Path(DESCRIPTION_RESOURCE).name
         shutil.copyfile(desc.source, copy)
-        paths = build_description(copy, out, designs)
-    paths.update(build_fmus({"Reference": None}, out))
+        built = build_description(copy, work / "fmus", designs, temp_root=work)
+        built.update(build_fmus({"Reference": None}, work / "fmus", temp_root=work))
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {}
+        for identifier, path in built.items():
+            data = path.read_bytes()
+            paths[identifier] = write_file(out / path.name, lambda f, data=data: f.write(data))
+    except OSError as exc:
+        raise ScenarioError(f"{out}: cannot write the FMUs: {exc.strerror or exc}") from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     return paths
 
 
@@ -155,6 +199,7 @@ def cmd_scenario(args) -> int:
         files = scenario_files(device, setup, relative)
     except ValueError as exc:
         raise _describe(exc) from None
+    check_device_names(device, [args.controller], fmu_dir)
     _write_folder(out, files)
     print(f"scenario    {out} ({', '.join(sorted(files))}); run it with `emcosim run {out}`")
     missing = [n for n in (device.name, device.controller_identifier(args.controller)) if not (fmu_dir / f"{n}.fmu").is_file()]
@@ -165,19 +210,19 @@ def cmd_scenario(args) -> int:
 
 
 def _write_folder(out: Path, files: dict[str, str]) -> None:
-    """Write the scenario's files into `out` (created if missing). A folder holding anything but a
-    scenario's files is refused; no file is written through a link."""
-    from ..engine.outputs import write_file
+    """Write the scenario's files as the folder `out` (its parents created if missing), whole: through an
+    engine OutputFolder (its manifest `.emcosim` lists what emcosim wrote), which replaces an existing `out`
+    only if that holds nothing but what an earlier run of emcosim wrote there, unchanged (an empty folder
+    too), and refuses anything else, naming what it holds; no file is written through a link."""
+    from ..engine.files import create_text
+    from ..engine.output_folder import OutputFolder
 
-    if out.is_symlink() or (out.exists() and not out.is_dir()):
-        raise ScenarioError(f"{out}: not a folder (a link or a file); the scenario is written into a folder")
-    if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir()
-                         if not (p.suffix in (".ssd", ".ssv") and p.is_file() and not p.is_symlink()))
-        if foreign:
-            raise ScenarioError(f"{out}: holds files that are not a scenario's ({', '.join(foreign[:5])}); "
-                                "choose an empty or new folder")
-    out.mkdir(parents=True, exist_ok=True)
-    for name, text in files.items():
-        data = text.encode("utf-8")
-        write_file(out / name, lambda f, data=data: f.write(data))
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    folder = OutputFolder(out)
+    try:
+        for name, text in files.items():
+            create_text(folder.path / name, text)
+    except BaseException:
+        folder.discard()
+        raise
+    folder.commit()

@@ -148,7 +148,7 @@ class ModelExchangeSimulation:
         if estimate <= self.AIM * tolerance and not solver_steps:
             result = b
             if sink is not None:                                 # the rows went to memory: now to the file
-                result = Result(b.columns, sink=sink)
+                result = Result(b.columns, sink=sink, notes=b.notes)
                 for row in b.rows:
                     result.append(row[0], row[1:])
                 result.model_exchange, result.warnings = b.model_exchange, b.warnings
@@ -181,11 +181,12 @@ class ModelExchangeSimulation:
         system = System(self.scenario, self.instances, self.connections, plan)
         if sink is not None:
             sink.rewind()
-        result = Result(plan.columns, sink=sink)
+        result = Result(plan.columns, sink=sink,
+                        notes=binding.model_differences(self.scenario, self.instances, parameters))
         system.statistics = Statistics(name, rtol, exact_jacobian=system.jacobian_plan is not None)
         result.model_exchange = system.statistics
         next_event = initialize(system, parameters, planned, rtol)
-        result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
+        result.warnings += [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
                            for m in inst.messages if m.startswith("[warning]")]
         try:
             with _event_reason(system):

@@ -476,3 +476,23 @@ def test_a_tolerance_run_streams_every_solve_and_keeps_the_rows_of_a_failing_one
     kept = read_csv(tmp_path / "f.partial.csv")
     assert not out.exists() and 0.4 < kept["time"][-1] < 0.5 and len(kept["time"]) > 40
     np.testing.assert_allclose(kept["f.y"], np.exp(-kept["time"]), rtol=1e-4)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--rtol", "1e-300"], "--rtol 1e-300: below 1e-13, the smallest relative tolerance the solvers resolve"),
+    (["--tolerance", "1e-15"], "--tolerance 1e-15: a Model Exchange run cannot keep a global error below 1e-11"),
+])
+def test_cli_refuses_tolerances_the_solvers_cannot_resolve(make, tmp_path, args, words):
+    """`emcosim run --interface-type ModelExchange --rtol 1e-300` never ended (the solver stayed at t = 0);
+    `--tolerance 1e-15` exited 0 with an estimated error far above it. Both: exit 1 in one line naming the
+    flag, before anything runs."""
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0)
+    out = tmp_path / "out.csv"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    run = subprocess.run([sys.executable, "-m", "emcosim.cli", "run", str(scenario.path.parent), "--interface-type",
+                          "ModelExchange", "-o", str(out), "--no-progress", *args], check=False, capture_output=True,
+                         text=True, cwd=tmp_path, env=env, timeout=60)
+    assert run.returncode == 1, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"emcosim: error: {words}"), run.stderr
+    assert not out.exists() and list(tmp_path.glob("out*")) == []

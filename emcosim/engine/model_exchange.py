@@ -229,19 +229,20 @@ class ModelExchangeSimulation:
         result = Result(plan.columns, sink=sink) if tap is None else _Tapped(plan.columns, sink, tap)
         system.statistics = Statistics(name, rtol, exact_jacobian=system.jacobian_plan is not None)
         result.model_exchange = system.statistics
-        next_event = initialize(system, parameters, planned, rtol)
-        result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
-                           for m in inst.messages if m.startswith("[warning]")]
         try:
+            next_event = initialize(system, parameters, planned, rtol)
+            result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
+                               for m in inst.messages if m.startswith("[warning]")]
             with _event_reason(system):
                 _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps, next_event, limit)
-        except SimulationError as exc:
+        except ScenarioError as exc:
             signum = stopping.requested()
             if signum is not None and not isinstance(exc, Interrupted):
                 # a stop was asked for, and an FMU call failed before the next check: a second signal raised
                 # inside the FMU (a Python FMU turns it into its own error); the run was stopped, not failed
                 raise Interrupted(signum, result) from exc
-            exc.result = result
+            if isinstance(exc, SimulationError):
+                exc.result = result
             raise
         return result, system
 

@@ -81,16 +81,16 @@ class ModelExchangeSimulation:
 
     A run at `rtol` is one solve at the solver's relative tolerance rtol (absolute: rtol times each state's
     nominal). A run with a `tolerance` keeps the recorded variables' global error within it (each variable's
-    largest error over its largest magnitude in the run): it solves at rtol_A = 10 tolerance / ME_SOLVES
-    and rtol_B = rtol_A / 10, takes |y_A - y_B| as the error of A and, with tolerance proportionality (the
-    global error falls by at least RATIO per decade of rtol), d / (RATIO - 1) as the error of B; B is the
-    result if that is within AIM tolerance, else a third solve at the rtol that proportionality gives for
+    largest error over its largest magnitude in the run): it solves at rtol_A = FIRST tolerance (FIRST =
+    10 / ME_SOLVES) and rtol_B = rtol_A / 10, takes |y_A - y_B| as the error of A and, with tolerance
+    proportionality (the global error falls by at least RATIO per decade of rtol), d / (RATIO - 1) as the
+    error of B; B is the result if that is within AIM tolerance, else a third solve at the rtol that proportionality gives for
     AIM tolerance (at most rtol_A). Each solve streams its rows to the sink (the next one replaces them);
     A's rows wait on a tape (a temporary file) for B's to be compared with them one by one. An rtol below
     MIN_RTOL ends the run with `RunLimit` (B's rows kept). `result.model_exchange` reports the solves and
     the estimate."""
 
-    RATIO, AIM = 5.0, 0.5
+    FIRST, RATIO, AIM = 10 / ME_SOLVES, 5.0, 0.5
 
     def __init__(self, scenario: Scenario, call: Callable[[Callable[[], None]], None] | None = None):
         self.scenario = scenario
@@ -168,8 +168,8 @@ class ModelExchangeSimulation:
     def _controlled(self, parameters, planned: Experiment, record, name: str, tolerance: float, progress,
                     solver_steps: bool, sink: ResultFile | None, limit: float) -> tuple[Result, list[System]]:
         """The solves of a run with a tolerance (class docstring)."""
-        rtol_b = tolerance / ME_SOLVES
-        rtol_a = 10 * rtol_b
+        rtol_a = self.FIRST * tolerance
+        rtol_b = rtol_a / 10
         with _Tape() as tape:
             _, system_a = self._solve(parameters, planned, record, name, rtol_a, None, False, sink, limit, tape.write)
             difference = _Difference(tape)

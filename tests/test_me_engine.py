@@ -496,3 +496,25 @@ def test_cli_refuses_tolerances_the_solvers_cannot_resolve(make, tmp_path, args,
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"emcosim: error: {words}"), run.stderr
     assert not out.exists() and list(tmp_path.glob("out*")) == []
+
+
+def test_a_tolerance_run_whose_temporary_file_fills_the_disk_says_so(make, monkeypatch):
+    """The first solve's rows wait on a temporary file: a full disk there (the file's write failing with
+    ENOSPC after 10 rows) ends the run with a SimulationError naming the folder and the rows so far, not
+    an OSError from inside the engine."""
+    import errno
+    import io
+    import tempfile
+
+    class Full(io.BytesIO):
+        def write(self, data) -> int:
+            if self.tell() >= 10 * len(data):
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return super().write(data)
+    monkeypatch.setattr(me.tempfile, "TemporaryFile", Full)
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0)
+    with pytest.raises(SimulationError, match=f"cannot keep the first solve's rows for the error estimate in a "
+                                              f"temporary file in {re.escape(tempfile.gettempdir())}: No space left "
+                                              f"on device") as info:
+        simulate(scenario, **ME, tolerance=1e-4, record=["d.x"])
+    assert len(info.value.result) == 11

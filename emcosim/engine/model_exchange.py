@@ -261,19 +261,35 @@ class _Tapped(Result):
 
 class _Tape:
     """The rows of one solve as doubles in an anonymous temporary file (gone with the process, even after
-    kill -9), read back in order: a run with a tolerance holds no solve's rows in memory."""
+    kill -9), read back in order: a run with a tolerance holds no solve's rows in memory (8 bytes per value
+    on the disk of $TMPDIR instead). A file that cannot be written (a full disk) ends the run with a
+    SimulationError saying so."""
 
     def __init__(self) -> None:
-        self.file = tempfile.TemporaryFile()
         self.rows, self.width = 0, 0
+        try:
+            self.file = tempfile.TemporaryFile()
+        except OSError as exc:
+            raise self._failure(exc) from None
+
+    @staticmethod
+    def _failure(exc: OSError) -> SimulationError:
+        return SimulationError(f"Model Exchange: cannot keep the first solve's rows for the error estimate in a "
+                               f"temporary file in {tempfile.gettempdir()}: {exc.strerror or exc}")
 
     def write(self, row: list[float]) -> None:
         self.width = len(row)
-        self.file.write(np.asarray(row, dtype=float).tobytes())
+        try:
+            self.file.write(np.asarray(row, dtype=float).tobytes())
+        except OSError as exc:
+            raise self._failure(exc) from None
         self.rows += 1
 
     def rewind(self) -> None:
-        self.file.seek(0)
+        try:
+            self.file.seek(0)                      # flushes the buffered rows
+        except OSError as exc:
+            raise self._failure(exc) from None
 
     def read(self) -> np.ndarray | None:
         """The next row, or None after the last."""

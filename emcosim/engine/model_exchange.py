@@ -84,11 +84,11 @@ class ModelExchangeSimulation:
     largest error over its largest magnitude in the run): it solves at rtol_A = FIRST tolerance (FIRST =
     10 / ME_SOLVES) and rtol_B = rtol_A / 10, takes |y_A - y_B| as the error of A and, with tolerance
     proportionality (the global error falls by at least RATIO per decade of rtol), d / (RATIO - 1) as the
-    error of B; B is the result if that is within AIM tolerance, else a third solve at the rtol that proportionality gives for
-    AIM tolerance (at most rtol_A). Each solve streams its rows to the sink (the next one replaces them);
-    A's rows wait on a tape (a temporary file) for B's to be compared with them one by one. An rtol below
-    MIN_RTOL ends the run with `RunLimit` (B's rows kept). `result.model_exchange` reports the solves and
-    the estimate."""
+    error of B; B is the result if that is within AIM tolerance, else a third solve at the rtol that
+    proportionality gives for AIM tolerance (at most rtol_A). Each solve streams its rows to the sink (the
+    next one replaces them); A's rows wait on a tape (a temporary file) for B's to be compared with them one
+    by one. A third solve that would need an rtol below MIN_RTOL is not made: the run ends with `RunLimit`
+    (B's rows kept). `result.model_exchange` reports the solves and the estimate."""
 
     FIRST, RATIO, AIM = 10 / ME_SOLVES, 5.0, 0.5
 

@@ -52,7 +52,11 @@ def add_parser(sub) -> None:
     scen.add_argument("--reference", action="append", default=[], metavar="KIND:NAME=VALUE,...",
                       help="reference of each position (tracking; repeat per position)")
     scen.add_argument("--q0", type=float, nargs="+", metavar="Q",
-                      help="initial positions: at rest with the equilibrium's electrical state (default: q_d or q*(0))")
+                      help="initial positions (default: q_d or q*(0))")
+    scen.add_argument("--p0", type=float, nargs="+", metavar="P", help="initial momenta (default: rest, p = 0)")
+    scen.add_argument("--x-e0", type=float, nargs="+", metavar="X",
+                      help="initial electrical states (default: those of the equilibrium at q0, x_e = 0 where the "
+                           "potential holds q0 alone)")
     scen.add_argument("--gain", action="append", default=[], metavar="NAME=VALUE",
                       help="a gain of the controller (repeatable; default: the description's)")
     scen.add_argument("--name", help="scenario name (default: <name>_<design>, lower case)")
@@ -149,7 +153,7 @@ def cmd_scenario(args) -> int:
             names = ["q_d"] if len(args.q_d) == 1 and device.n_m == 1 else [f"q_d_{i + 1}" for i in range(len(args.q_d))]
             gains.update(zip(names, args.q_d))
         setup = Setup(args.controller, args.stop_time, args.step_size, gains=gains, references=_references(args.reference),
-                      q_0=args.q0, name=args.name)
+                      q_0=args.q0, p_0=args.p0, x_e_0=args.x_e0, name=args.name)
         fmu_dir = Path(args.fmu_dir) if args.fmu_dir else Path("build") / desc.name
         relative = str(fmu_dir) if fmu_dir.is_absolute() else os.path.relpath(fmu_dir.resolve(), out.resolve())
         files = scenario_files(device, setup, relative)

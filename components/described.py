@@ -53,6 +53,8 @@ class _Described:
     """The description's domain inequalities as written (`q < c`); margin j > 0 is inequality j."""
     DOMAIN_PARAMETERS: tuple[tuple[str, ...], ...] = ()
     """The parameters in each inequality (named with their values in a DomainError)."""
+    GAMMA_IN_DEVICE_UNITS: bool = False
+    """Gamma, phi derived in the device's scale (Gamma^T q in the unit of x_e): z (eq. z) has a unit and so has k_c."""
     domain_reasons: tuple[str, ...] = ()
     """What a violation of each inequality means physically (optional, appended to the DomainError)."""
     params: dict[str, float]
@@ -238,8 +240,22 @@ def _electrical_damping_unit(a: str, b: str) -> str:
     return f"{a}2/J/s" if a == b else f"{a}.{b}/J/s"
 
 
-def gain_unit(gain: str, i: int, j: int, q: Sequence[VariableSpec], x_e: Sequence[VariableSpec]) -> str:
-    """The unit of entry (i, j) of a gain (0-based)."""
+def _input_weight_unit(a: str, b: str) -> str:
+    """unit(u_i) unit(u_j) / J, the unit of K_c (Theta_2 = 1/2 (z - L)^T K_c (z - L) [J], z_i in J/unit(u_i)):
+    V/C for voltages, A/Wb for currents."""
+    if a == b == "V":
+        return "V/C"
+    if a == b == "A":
+        return "A/Wb"
+    return f"{a}2/J" if a == b else f"{a}.{b}/J"
+
+
+def gain_unit(gain: str, i: int, j: int, q: Sequence[VariableSpec], x_e: Sequence[VariableSpec],
+              u: Sequence[VariableSpec] | None = None) -> str:
+    """The unit of entry (i, j) of a gain (0-based), from the units of the description's variables
+    (docs/derivations.md, "Units of the gains"). k_c needs the inputs u."""
+    if gain == "k_c" and u is not None:
+        return _input_weight_unit(u[i].unit, u[j].unit)
     if gain == "q_d":
         return q[i].unit
     if gain == "D_d":
@@ -289,7 +305,8 @@ def make_device(plant_cls: Any, defaults: Mapping[str, list], forms: Mapping[str
             what = GAIN_TEXT[gain] + (f", entry ({i + 1}, {j + 1})" if name != gain else "")
             if gain == "q_d" and name != gain:
                 what = f"{GAIN_TEXT[gain]} {V['q'][i].name}_d"
-            out.append(Parameter(name, float(values[i][j]), gain_unit(gain, i, j, V["q"], V["x_e"]), what, condition))
+            unit = gain_unit(gain, i, j, V["q"], V["x_e"], V["u"] if plant_cls.GAMMA_IN_DEVICE_UNITS else None)
+            out.append(Parameter(name, float(values[i][j]), unit, what, condition))
         specs[gain] = out
 
     def matrix(gain: str, g: Mapping[str, float]) -> np.ndarray | None:

@@ -82,6 +82,16 @@ class DesignVerdict:
     name: str
     applies: bool
     reason: str
+    start: str = ""
+    """What the design commands at the scenario's initial state and its fastest rate (emcosim.devices.start)."""
+    exceeds_actuator: bool = False
+    """Its start input leaves the description's actuator range ([model] u_max)."""
+
+    @property
+    def status(self) -> str:
+        if not self.applies:
+            return "does not apply"
+        return "applies, but exceeds the actuator" if self.exceeds_actuator else "applies"
 
 
 @dataclass
@@ -115,7 +125,7 @@ class Report:
         return {"plant": self.plant, "source": self.source, "parameters": self.parameters, "q_d": self.q_d,
                 "x_e_d": self.x_e_d, "box": self.box, "setpoint": verdict(self.setpoint),
                 "reference": verdict(self.reference), "assumptions": [verdict(a) for a in self.assumptions],
-                "designs": [asdict(d) for d in self.design_verdicts], "applies": self.designs}
+                "designs": [{**asdict(d), "status": d.status} for d in self.design_verdicts], "applies": self.designs}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
@@ -133,7 +143,9 @@ class Report:
                 lines.append(f"  [{t.verdict:>11}] {t.condition} -- {t.method}{detail}")
         lines.append("Designs:")
         for d in self.design_verdicts:
-            lines.append(f"  {d.name:<12} {'applies' if d.applies else 'does not apply'}: {d.reason}")
+            lines.append(f"  {d.name:<12} {d.status}: {d.reason}")
+            if d.start:
+                lines.append(f"  {'':<12} {d.start}")
         return "\n".join(lines)
 
 

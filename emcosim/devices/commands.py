@@ -32,6 +32,11 @@ def add_parser(sub) -> None:
                        help="reference of each position, e.g. sinusoid:offset=0.001,amplitude=3e-4,omega=31.4 "
                             "(repeat per position; kinds: constant, sinusoid, smooth_step)")
     check.add_argument("--horizon", type=float, default=None, help="horizon over which the reference is checked [s]")
+    check.add_argument("--q0", type=float, nargs="+", metavar="Q",
+                       help="initial positions of the scenario whose start input is reported (as plant scenario)")
+    check.add_argument("--p0", type=float, nargs="+", metavar="P", help="initial momenta (default: rest)")
+    check.add_argument("--x-e0", type=float, nargs="+", metavar="X",
+                       help="initial electrical states (default: those of the equilibrium at q0)")
     check.add_argument("--json", help="also write the report as JSON to this file")
     check.set_defaults(func=cmd_check)
 
@@ -91,7 +96,10 @@ def cmd_check(args) -> int:
             from components import description as descriptions
             desc = descriptions.load(args.file)
             reference = StackedReference(reference_components(desc.q, _references(args.reference), desc.name))
-        _, report, _ = registry.load(args.file, q_d=args.q_d, reference=reference, horizon=args.horizon)
+        desc, report, device = registry.load(args.file, q_d=args.q_d, reference=reference, horizon=args.horizon)
+        from .start import attach
+        attach(report, device, desc, references=_references(args.reference), q_0=args.q0, p_0=args.p0,
+               x_e_0=args.x_e0, gains=_q_d_gains(device, args.q_d))
     except ValueError as exc:
         raise _describe(exc) from None
     print(report.text())
@@ -100,6 +108,14 @@ def cmd_check(args) -> int:
         write_file(Path(args.json), lambda f: f.write(data))
         print(f"report written to {args.json}")
     return 0
+
+
+def _q_d_gains(device, q_d) -> dict[str, float]:
+    """The set-point as controller gains: q_d (n_m = 1) or q_d_1, q_d_2, ..."""
+    if q_d is None:
+        return {}
+    names = ["q_d"] if len(q_d) == 1 and device.n_m == 1 else [f"q_d_{i + 1}" for i in range(len(q_d))]
+    return dict(zip(names, q_d))
 
 
 def cmd_build(args) -> int:
@@ -149,9 +165,7 @@ def cmd_scenario(args) -> int:
     try:
         desc, _, device = registry.load(args.file)
         gains = dict(gain_values(args.gain))
-        if args.q_d is not None:
-            names = ["q_d"] if len(args.q_d) == 1 and device.n_m == 1 else [f"q_d_{i + 1}" for i in range(len(args.q_d))]
-            gains.update(zip(names, args.q_d))
+        gains.update(_q_d_gains(device, args.q_d))
         setup = Setup(args.controller, args.stop_time, args.step_size, gains=gains, references=_references(args.reference),
                       q_0=args.q0, p_0=args.p0, x_e_0=args.x_e0, name=args.name)
         fmu_dir = Path(args.fmu_dir) if args.fmu_dir else Path("build") / desc.name

@@ -17,6 +17,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from . import operating_point as _op
 from .device import DESIGNS, Design, Device, VariableSpec
 from .parameters import Parameter, resolve
 from .ph_plant import DomainError, EMPlant, Jet, OneDOFPlant
@@ -174,8 +175,7 @@ class DescribedPlant(_Described, EMPlant):
         with A_ki = (dPsi/dq_k(q*) x_e*)_i.
         """
         if self.n_e != self.n_m:
-            raise NotImplementedError(f"{self.name}: feasible_state needs n_e = n_m (here n_m = {self.n_m}, "
-                                      f"n_e = {self.n_e}): x_e* is not determined by the mechanical equations")
+            return self._feasible_by_rule(jet)
         q, qd, qdd, qddd = (np.asarray(v).reshape(-1) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
         q_real = np.real(q).astype(float)
         if not all(np.real(g) > 0 for g in self.margins(q_real)):
@@ -193,6 +193,49 @@ class DescribedPlant(_Described, EMPlant):
         x_dot = np.linalg.solve(A, -F_dot - 0.5 * np.einsum("i,kij,j->k", x, dPsi_dt, x))
         p = np.linalg.solve(self.M_inv(q), qd)             # p* = M(q*) q*'
         return np.concatenate([q, p, x]), x_dot
+
+    OPERATING_POINT: tuple | None = None
+    """The description's operating-point rule (components.operating_point.Rule.as_tuple), n_e > n_m; None: the
+    least electrical energy (the default)."""
+
+    def operating_rule(self) -> _op.Rule:
+        return _op.Rule.from_tuple(self.OPERATING_POINT) if self.OPERATING_POINT else _op.Rule(given=False)
+
+    def _feasible_by_rule(self, jet: Jet, branch_only: bool = False) -> Any:
+        """(eta*, x_e*') for n_e > n_m: x_e* by the operating-point rule (components.operating_point) from the force
+        balance A(q*) w = -F*, A_ki = (dPsi/dq_k)_ii / 2, w = x_e*^2, and x_e*' from its time derivative."""
+        q, qd, qdd, qddd = (np.asarray(v).reshape(-1) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
+        q_real = np.real(q).astype(float)
+        if not all(np.real(g) > 0 for g in self.margins(q_real)):
+            self._domain_error(q_real)
+        dPsi, Psi = np.asarray(self.dPsi(q)), np.asarray(self.Psi(q))
+        off = [D - np.diag(np.diag(D)) for D in (*np.real(dPsi), np.real(Psi))]
+        if any(np.any(o != 0) for o in off):
+            raise NotImplementedError(f"{self.name}: an operating point for n_e = {self.n_e} > n_m = {self.n_m} needs "
+                                      "diagonal Psi(q) and dPsi/dq_k (components.operating_point)")
+        A = np.einsum("kii->ki", dPsi) / 2
+        F, F_dot = self.force_jet(q, qd, qdd, qddd)
+        rule = self.operating_rule()
+        names = [v.name for v in self.VARIABLES["x_e"]]
+        try:
+            x, branch = _op.solve(rule, A, -np.asarray(F), np.diag(Psi), self.x_e_sign)
+        except _op.NoOperatingPoint as exc:
+            where = ", ".join(f"{v.name}* = {x_:.6g}" for v, x_ in zip(self.VARIABLES["q"], q_real))
+            raise ValueError(f"{self.name}: infeasible reference at {where} with the operating point "
+                             f"{rule.describe(names)}: {exc} (Definition 1)") from None
+        if branch_only:
+            return branch
+        A_dot = np.einsum("klii,l->ki", np.asarray(self.d2Psi(q)), qd) / 2
+        x_dot = _op.rate(rule, branch, A, A_dot, -np.asarray(F_dot), x)
+        p = np.linalg.solve(self.M_inv(q), qd)
+        return np.concatenate([q, p, x]), x_dot
+
+    def electrical_branch(self, jet: Jet) -> tuple:
+        """The energized ports of x_e*(jet) chosen by the operating-point rule (n_e > n_m; () otherwise): where it
+        changes along a reference x_e*(t) is not differentiable."""
+        if self.n_e == self.n_m:
+            return ()
+        return self._feasible_by_rule(jet, branch_only=True)
 
     def _solve_real(self, dPsi: np.ndarray, F: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Real x with -1/2 x^T dPsi_k x = F_k, by damped Newton from x_e_sign * (a common magnitude)."""

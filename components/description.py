@@ -21,7 +21,7 @@ import tokenize
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import sympy
@@ -39,7 +39,7 @@ CONDITIONS = ("> 0", ">= 0", "any")
 MODEL_REQUIRED = ("M", "V", "Psi", "R_m", "J_e", "R_e", "G_e")
 MODEL_OPTIONAL = ("domain", "Gamma", "phi", "x_e_sign", "u_max")
 VARIABLE_KINDS = ("q", "p", "x_e", "u")
-TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller"}
+TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller", "operating_point"}
 CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c", "W")
 NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 DEVICE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*\Z")
@@ -98,6 +98,9 @@ class Description:
     """The [controller] table's gains as matrices (q_d a column), in the [controller.parameters] symbols."""
     gain_parameters: dict[str, Parameter] = field(default_factory=dict)
     u_max: tuple[float, ...] | None = None
+    operating_point: Any = None
+    """The [operating_point] rule (components.operating_point.Rule) for n_e > n_m; None: the default, the least
+    electrical energy."""
     """The actuator's range |u_i| <= u_max_i, in the units of u (optional; `plant check` compares the inputs the
     designs command at the start with it)."""
 
@@ -179,6 +182,7 @@ class _Parser:
         if not isinstance(controller, dict):
             raise self.error("controller", "controller", "must be a table")
         self.controller_table(controller, set(variables["names"]) | set(parameters))
+        self.rule = self.operating_point_table(data.get("operating_point"), variables["x_e"], model)
         if model["gamma_source"] == "derived":
             model["Gamma"], model["phi"], model["gamma_source"] = self.scaled_factorization(model)
         return Description(
@@ -187,7 +191,7 @@ class _Parser:
             **model, q_symbols=self.q_sym, p_symbols=tuple(self.symbols[v.name] for v in variables["p"]),
             x_e_symbols=self.x_sym, u_symbols=tuple(self.symbols[v.name] for v in variables["u"]),
             parameter_symbols=self.par_sym, controller=controller, notes=tuple(self.notes),
-            gains=self.gain_matrices, gain_parameters=self.gain_parameters)
+            gains=self.gain_matrices, gain_parameters=self.gain_parameters, operating_point=self.rule)
 
     def variables(self, table: Any) -> dict[str, Any]:
         if not isinstance(table, dict):
@@ -574,12 +578,63 @@ class _Parser:
         dPsi = [model["Psi"].diff(qk) for qk in self.q_sym]
         A = np.array([[float(dPsi[k][i, i].subs(at)) / 2 for i in range(self.n_e)] for k in range(self.n_m)])
         b = -np.array([float(sympy.diff(model["V"], qk).subs(at)) for qk in self.q_sym])
+        if self.n_e > self.n_m:                       # the operating-point rule fixes the free coordinates
+            from .operating_point import NoOperatingPoint, Rule, solve
+            Psi = np.array(model["Psi"].subs(at).evalf(), dtype=float)
+            try:
+                x, _ = solve(self.rule or Rule(given=False), A, b, np.diag(Psi), 1.0)
+            except NoOperatingPoint as exc:
+                return f"no operating point at q_d: {exc}"
+            return q_d, np.abs(x)
         if self.n_e != self.n_m or abs(np.linalg.det(A)) == 0:
-            return "x_e_d is not fixed by the force balance at q_d (n_e != n_m or A(q_d) singular)"
+            return "x_e_d is not fixed by the force balance at q_d (n_e < n_m or A(q_d) singular)"
         w = np.linalg.solve(A, b)
         if not np.all(w > 0):
             return f"x_e_d^2 = {_list(w)} at q_d has an entry <= 0"
         return q_d, np.sqrt(w)
+
+    def operating_point_table(self, table: Any, x_e: Sequence[VariableSpec], model: dict) -> Any:
+        """[operating_point]: rule = "least_energy" | "bias"; for a bias, n_e - n_m entries <x_e name> = value or
+        [<x_e name>, ratio] (components.operating_point.Rule). Only for n_e > n_m with diagonal Psi, dPsi/dq_k."""
+        from .operating_point import RULES, Rule
+        if table is None:
+            return None
+        if not isinstance(table, dict):
+            raise self.error("operating_point", "operating_point", "must be a table")
+        if self.n_e <= self.n_m:
+            raise self.error("operating_point", "rule", f"n_e = {self.n_e} <= n_m = {self.n_m}: the force balance fixes "
+                                                        "x_e (where it has a solution); there is nothing to choose")
+        dPsi = [model["Psi"].diff(qk) for qk in self.q_sym]
+        if not all(self.is_zero_matrix(D - sympy.diag(*D.diagonal())) for D in [*dPsi, model["Psi"]]):
+            raise self.error("operating_point", "rule", "needs Psi(q) and every dPsi/dq_k diagonal (the force balance "
+                                                        "linear in x_e_i^2, components.operating_point)")
+        kind = table.get("rule")
+        if kind not in RULES:
+            raise self.error("operating_point", "rule", f"{kind!r} is not one of {list(RULES)}")
+        names = [v.name for v in x_e]
+        entries = {k: v for k, v in table.items() if k != "rule"}
+        unknown = sorted(set(entries) - set(names))
+        if unknown:
+            raise self.error("operating_point", unknown[0], f"not an electrical state; they are {names}")
+        if kind == "least_energy":
+            if entries:
+                raise self.error("operating_point", sorted(entries)[0], "the least-energy rule takes no values")
+            return Rule("least_energy")
+        if len(entries) != self.n_e - self.n_m:
+            raise self.error("operating_point", "rule", f"a bias gives n_e - n_m = {self.n_e - self.n_m} coordinate(s), "
+                                                        f"not {len(entries)}")
+        values, ratios = [], []
+        for name, v in entries.items():
+            i = names.index(name)
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                values.append((i, float(v)))
+            elif (isinstance(v, list) and len(v) == 2 and v[0] in names and v[0] not in entries
+                  and isinstance(v[1], (int, float)) and not isinstance(v[1], bool) and math.isfinite(v[1]) and v[1] != 0):
+                ratios.append((i, names.index(v[0]), float(v[1])))
+            else:
+                raise self.error("operating_point", name, f"{v!r} must be a finite value or [<x_e name>, ratio] with a "
+                                                          "solved coordinate and a ratio != 0")
+        return Rule("bias", tuple(values), tuple(ratios))
 
     # ---- [controller] --------------------------------------------------------------------------------
     def controller_table(self, table: dict, taken: set[str]) -> None:

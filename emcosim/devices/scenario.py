@@ -20,6 +20,7 @@ import numpy as np
 
 from components import catalog
 from components.device import Device, VariableSpec
+from components.operating_point import switches
 from components.ph_plant import Jet
 from components.references import KINDS
 
@@ -229,11 +230,19 @@ def _design(device: Device, setup: Setup) -> tuple:
     if not design.tracking and setup.references:
         raise ValueError(f"{identifier} regulates to q_d (a gain): it takes no reference")
     references = reference_components(device.q, setup.references, identifier) if design.tracking else []
-    for t in np.linspace(0.0, setup.stop_time, 201) if references else ():
+    times = np.linspace(0.0, setup.stop_time, 201) if references else np.zeros(0)
+    branches = []
+    branch_of = getattr(controller.plant, "electrical_branch", None)      # n_e > n_m: the energized ports
+    for t in times:
         try:
-            controller.target(stacked_jet(references, float(t)))            # Definition 1: x_e* exists
+            jet = stacked_jet(references, float(t))
+            controller.target(jet)                                          # Definition 1: x_e* exists
+            branches.append(branch_of(jet) if branch_of is not None else ())
         except ValueError as exc:
             raise ValueError(f"the reference is not feasible at t = {t:g} s: {exc}") from None
+    why = switches(list(times), branches, [v.name for v in device.x_e])
+    if why:
+        raise ValueError(f"the reference is not feasible with the operating-point rule: {why}")
     return controller, gains, references
 
 

@@ -91,7 +91,8 @@ def test_check_reports_the_start_input_and_whether_it_exceeds_the_actuator(form,
     x_0 = np.sqrt(2 * v["eps_A"] * v["k_s"] * 2e-7)
     assert start.eta_0 == pytest.approx([2e-7, 0.0, x_0], rel=1e-12)
     expected = _law_u2(v, plant.Gamma[0, 0], lambda x: plant.grad_phi(np.array([x]))[0], 0.5e-6,
-                       np.sqrt(2 * v["eps_A"] * v["k_s"] * 0.5e-6), 1e12, 2e-6, start.eta_0)
+                       np.sqrt(2 * v["eps_A"] * v["k_s"] * 0.5e-6), float(desc.controller["k_c"]),
+                       float(desc.controller["R_e_bar"]), start.eta_0)
     assert start.u_0[0] == pytest.approx(expected, rel=1e-8)
     if form == "scaled":
         assert abs(start.u_0[0]) < 50 and report["Proposition2"]["status"] == "applies"

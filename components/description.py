@@ -696,3 +696,35 @@ def gain_table(desc: Description) -> tuple[dict[str, list[list[float]]], dict[st
 
 def _list(values: Any) -> str:
     return "(" + ", ".join(f"{float(v):.6g}" for v in values) + ")"
+
+
+def with_operating_point(text: str, spec: str, source: str = "<string>") -> str:
+    """The description `text` with its [operating_point] table replaced by `spec` (the command line's choice):
+    "least_energy", or "bias:NAME=VALUE,..." where VALUE is a number or OTHER*RATIO (x_2=0.5, x_2=x_1*0.4).
+    A DescriptionError names a malformed spec; the result is checked when it is parsed."""
+    kind, _, rest = spec.partition(":")
+    kind = kind.strip()
+    lines = ["[operating_point]", f"rule = {kind!r}".replace("'", '"')]
+    for item in filter(None, (part.strip() for part in rest.split(","))):
+        name, eq, value = (v.strip() for v in item.partition("="))
+        other, star, ratio = value.partition("*")
+        if not (eq and NAME.match(name)):
+            raise DescriptionError(f"{source}: [operating_point] {item}: not NAME=VALUE or NAME=OTHER*RATIO")
+        try:
+            entry = f'["{other.strip()}", {float(ratio)!r}]' if star else repr(float(value))
+        except ValueError:
+            raise DescriptionError(f"{source}: [operating_point] {item}: not NAME=VALUE or NAME=OTHER*RATIO") from None
+        if star and not NAME.match(other.strip()):
+            raise DescriptionError(f"{source}: [operating_point] {item}: not NAME=OTHER*RATIO")
+        lines.append(f"{name} = {entry}")
+    kept, skipping = [], False
+    for line in text.splitlines():
+        header = line.strip()
+        if header.startswith("["):
+            skipping = header.split("#")[0].strip() == "[operating_point]"
+        if not skipping:
+            kept.append(line)
+    if re.search(r"^\s*operating_point\s*=", "\n".join(kept), re.MULTILINE):
+        raise DescriptionError(f"{source}: [operating_point] operating_point: given inline in the file; write it as a "
+                               "table to override it from the command line")
+    return "\n".join(kept) + "\n\n" + "\n".join(lines) + "\n"

@@ -120,3 +120,32 @@ def test_plant_fmu_starts_at_the_equilibrium_of_q_d_even_without_a_regulation_de
     xml = zipfile.ZipFile(out / "TwoMagnetBall.fmu").read("modelDescription.xml").decode()
     start = {n: float(v) for n, v in re.findall(r'name="(\w+)_0"[^>]*>\s*<Real[^>]*start="([^"]+)"', xml)}
     assert start == pytest.approx({"q": 0.005, "p": 0.0, "x_1": math.sqrt(2 * k * b), "x_2": 0.0}, rel=1e-12)
+
+
+def test_the_command_line_chooses_the_operating_point(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    assert main(["plant", "check", str(BALL), "--operating-point", "bias:x_2=x_1*0.4", "--json", str(out)]) == 0
+    import json
+    report = json.loads(out.read_text())
+    x_1 = math.sqrt(2 * k * b / (1 - 0.4 ** 2))               # x_1^2 - (0.4 x_1)^2 = 2 k b
+    assert report["x_e_d"] == pytest.approx([x_1, 0.4 * x_1], rel=1e-12)
+    assert report["operating_point"] == "bias x_2 = 0.4 x_1"
+    assert main(["plant", "check", str(BALL), "--operating-point", "least_energy"]) == 0
+    text = capsys.readouterr().out
+    assert "operating point (n_e > n_m): least electrical energy" in text and "Proposition2 does not apply" in text
+    fmus = tmp_path / "fmus"
+    assert main(["plant", "build", str(BALL), "--operating-point", "bias:x_2=0.8", "--out", str(fmus)]) == 0
+    import zipfile
+    fmu = zipfile.ZipFile(fmus / "TwoMagnetBall.fmu")
+    assert "x_2 = 0.8" in fmu.read("resources/emcosim_description.toml").decode()
+    start = dict(re.findall(r'name="(\w+)_0"[^>]*>\s*<Real[^>]*start="([^"]+)"', fmu.read("modelDescription.xml").decode()))
+    assert float(start["x_2"]) == 0.8 and float(start["x_1"]) == pytest.approx(math.sqrt(2 * k * b + 0.64), rel=1e-12)
+    assert BALL.read_text().count("x_2 = 0.5") == 1                # the user's file is untouched
+
+
+@pytest.mark.parametrize("spec", ["bias:x_2", "bias:x_2=abc", "cheapest"])
+def test_a_malformed_command_line_operating_point_is_refused_in_one_line(spec, tmp_path, capsys):
+    assert main(["plant", "build", str(BALL), "--operating-point", spec, "--out", str(tmp_path / "f")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("emcosim: error: ") and "[operating_point]" in err[0]
+    assert not (tmp_path / "f").exists()

@@ -149,3 +149,21 @@ def test_a_malformed_command_line_operating_point_is_refused_in_one_line(spec, t
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("emcosim: error: ") and "[operating_point]" in err[0]
     assert not (tmp_path / "f").exists()
+
+
+def test_plant_scenario_refuses_a_reference_along_which_the_rule_switches_ports(tmp_path, capsys):
+    """A sprung, damped ball (Assumption 3 holds, Theorem 2 applies whatever the point) with the least-energy
+    rule: the reference that pulls it down faster than g switches the energized coil, and `plant scenario`
+    refuses it, naming the ports and the times (Definition 1 needs x_e*')."""
+    path = tmp_path / "sprung.toml"
+    text = _least_energy(tmp_path).read_text().replace('V   = "b*q"', 'V   = "b*q + 50*(q - 0.005)**2/2"')
+    path.write_text(text.replace('R_m = "0"', 'R_m = "0.5"'))
+    args = ["plant", "scenario", str(path), "--controller", "Theorem2", "--out", str(tmp_path / "s"),
+            "--reference", "sinusoid:offset=0.005,amplitude=0.0008,omega=120", "--stop-time", "0.1",
+            "--step-size", "0.001"]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "not feasible with the operating-point rule" in err and "switches from port(s) x_1 to x_2" in err
+    assert not (tmp_path / "s").exists()
+    gentle = [a if not a.startswith("sinusoid") else "sinusoid:offset=0.005,amplitude=0.0008,omega=20" for a in args]
+    assert main(gentle) == 0                                    # |q''| = 0.3 m/s2: the upper coil throughout

@@ -174,8 +174,11 @@ class DescribedPlant(_Described, EMPlant):
         complex jet: complex step). Differentiating in time: A x_e*' = -F*' - 1/2 x_e*^T (dPsi_k/dt) x_e*
         with A_ki = (dPsi/dq_k(q*) x_e*)_i.
         """
-        if self.n_e != self.n_m:
+        if self.n_e > self.n_m:
             return self._feasible_by_rule(jet)
+        if self.n_e < self.n_m:
+            raise NotImplementedError(f"{self.name}: feasible_state needs n_e >= n_m (here n_m = {self.n_m}, "
+                                      f"n_e = {self.n_e}): the force balance is overdetermined")
         q, qd, qdd, qddd = (np.asarray(v).reshape(-1) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
         q_real = np.real(q).astype(float)
         if not all(np.real(g) > 0 for g in self.margins(q_real)):
@@ -211,8 +214,9 @@ class DescribedPlant(_Described, EMPlant):
         dPsi, Psi = np.asarray(self.dPsi(q)), np.asarray(self.Psi(q))
         off = [D - np.diag(np.diag(D)) for D in (*np.real(dPsi), np.real(Psi))]
         if any(np.any(o != 0) for o in off):
-            raise NotImplementedError(f"{self.name}: an operating point for n_e = {self.n_e} > n_m = {self.n_m} needs "
-                                      "diagonal Psi(q) and dPsi/dq_k (components.operating_point)")
+            raise ValueError(f"{self.name}: an operating point for n_e = {self.n_e} > n_m = {self.n_m} needs "
+                             "diagonal Psi(q) and dPsi/dq_k (components.operating_point): not available for "
+                             "coupled coils")
         A = np.einsum("kii->ki", dPsi) / 2
         F, F_dot = self.force_jet(q, qd, qdd, qddd)
         rule = self.operating_rule()
@@ -233,7 +237,7 @@ class DescribedPlant(_Described, EMPlant):
     def electrical_branch(self, jet: Jet) -> tuple:
         """The energized ports of x_e*(jet) chosen by the operating-point rule (n_e > n_m; () otherwise): where it
         changes along a reference x_e*(t) is not differentiable."""
-        if self.n_e == self.n_m:
+        if self.n_e <= self.n_m:
             return ()
         return self._feasible_by_rule(jet, branch_only=True)
 

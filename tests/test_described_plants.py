@@ -246,7 +246,7 @@ def test_unequal_dimensions_refuse_feasible_state():
         .replace('G_e = [["1", "0"], ["0", "1"]]', 'G_e = "1"').replace("k_c = [[20.0, 0.0], [0.0, 20.0]]", "k_c = 20.0")
     P = codegen.plant_class(parse(text))()
     z = np.zeros(2)
-    with pytest.raises(NotImplementedError, match="n_e = n_m"):
+    with pytest.raises(NotImplementedError, match="n_e >= n_m"):
         P.feasible_state(Jet(z, z, z, z))
 
 

@@ -167,3 +167,11 @@ def test_plant_scenario_refuses_a_reference_along_which_the_rule_switches_ports(
     assert not (tmp_path / "s").exists()
     gentle = [a if not a.startswith("sinusoid") else "sinusoid:offset=0.005,amplitude=0.0008,omega=20" for a in args]
     assert main(gentle) == 0                                    # |q''| = 0.3 m/s2: the upper coil throughout
+
+
+def test_an_operating_point_for_n_e_equal_n_m_is_refused_naming_the_users_file(tmp_path, capsys):
+    solenoid = ROOT / "examples" / "solenoid" / "solenoid.toml"
+    assert main(["plant", "build", str(solenoid), "--operating-point", "least_energy", "--out", str(tmp_path / "f")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"emcosim: error: {solenoid} (--operating-point least_energy): ")
+    assert "nothing to choose" in err[0] and not (tmp_path / "f").exists()

@@ -105,7 +105,10 @@ def _description_file(path: str, operating_point: str | None) -> Iterator[str]:
     with tempfile.TemporaryDirectory(prefix="emcosim_operating_point_") as tmp:
         copy = Path(tmp) / Path(path).name
         copy.write_text(with_operating_point(text, operating_point, path), encoding="utf-8")
-        yield str(copy)
+        try:
+            yield str(copy)
+        except ValueError as exc:                        # name the user's file, not the copy
+            raise type(exc)(str(exc).replace(str(copy), f"{path} (--operating-point {operating_point})")) from None
 
 
 def _references(items: list[str]):
@@ -153,7 +156,7 @@ def cmd_build(args) -> int:
     try:
         with _description_file(args.file, args.operating_point) as file:
             return _build(file, Path(args.out))
-    except ValueError as exc:                           # a malformed --operating-point
+    except ValueError as exc:                           # a wrong description or --operating-point
         raise _describe(exc) from None
 
 
@@ -162,10 +165,7 @@ def _build(file: str, out: Path) -> int:
 
     from . import registry
 
-    try:
-        desc, report, device = registry.load(file)
-    except ValueError as exc:
-        raise _describe(exc) from None
+    desc, report, device = registry.load(file)          # a ValueError is reported by cmd_build
     for line in report.not_applicable():                # "<design>: <why>"
         print(f"not built   {device.name}_{line}")
     try:

@@ -175,3 +175,34 @@ def test_an_operating_point_for_n_e_equal_n_m_is_refused_naming_the_users_file(t
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"emcosim: error: {solenoid} (--operating-point least_energy): ")
     assert "nothing to choose" in err[0] and not (tmp_path / "f").exists()
+
+
+def _sprung(tmp_path: Path) -> Path:
+    """The ball on a spring (50 N/m about 5 mm) with air damping 0.5 N s/m and the least-energy rule:
+    Assumptions 1 and 3 hold whatever the operating point, so Proposition 1 and Theorem 2 apply."""
+    path = tmp_path / "sprung.toml"
+    text = _least_energy(tmp_path).read_text().replace('V   = "b*q"', 'V   = "b*q + 50*(q - 0.005)**2/2"')
+    path.write_text(text.replace('R_m = "0"', 'R_m = "0.5"'))
+    return path
+
+
+@pytest.mark.slow
+def test_with_least_energy_the_designs_that_apply_run_on_the_upper_coil_alone(tmp_path, capsys):
+    import csv
+    path, fmus = _sprung(tmp_path), tmp_path / "fmus"
+    assert main(["plant", "build", str(path), "--out", str(fmus)]) == 0
+    assert {p.stem for p in fmus.glob("*_*.fmu")} == {"TwoMagnetBall_Proposition1", "TwoMagnetBall_Theorem2"}
+    runs = {"Proposition1": ["--q0", "0.004", "--stop-time", "1.5"],
+            "Theorem2": ["--reference", "sinusoid:offset=0.005,amplitude=0.001,omega=5", "--q0", "0.0045",
+                         "--stop-time", "2"]}
+    for design, extra in runs.items():
+        folder = tmp_path / design
+        assert main(["plant", "scenario", str(path), "--controller", design, "--out", str(folder), "--fmu-dir",
+                     str(fmus), "--step-size", "0.001", *extra]) == 0
+        out = tmp_path / f"{design}.csv"
+        assert main(["run", str(folder), "--output", str(out), "--no-progress"]) == 0
+        rows = list(csv.DictReader(out.open()))
+        t, q = float(rows[-1]["time"]), float(rows[-1]["plant.q"])
+        target = 0.005 if design == "Proposition1" else 0.005 + 0.001 * math.sin(5 * t)
+        assert abs(q - target) < 0.02 * 0.001, (design, q, target)
+        assert all(float(r["plant.x_2"]) == 0.0 for r in rows)        # the lower coil is never energized

@@ -222,7 +222,8 @@ class DescribedPlant(_Described, EMPlant):
         rule = self.operating_rule()
         names = [v.name for v in self.VARIABLES["x_e"]]
         try:
-            x, branch = _op.solve(rule, A, -np.asarray(F), np.diag(Psi), self.x_e_sign)
+            cost = _op.weights(rule, np.diag(Psi), self.R_e, self.J_e, self.G_e)
+            x, branch = _op.solve(rule, A, -np.asarray(F), cost, self.x_e_sign)
         except _op.NoOperatingPoint as exc:
             where = ", ".join(f"{v.name}* = {x_:.6g}" for v, x_ in zip(self.VARIABLES["q"], q_real))
             raise ValueError(f"{self.name}: infeasible reference at {where} with the operating point "

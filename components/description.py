@@ -579,10 +579,12 @@ class _Parser:
         A = np.array([[float(dPsi[k][i, i].subs(at)) / 2 for i in range(self.n_e)] for k in range(self.n_m)])
         b = -np.array([float(sympy.diff(model["V"], qk).subs(at)) for qk in self.q_sym])
         if self.n_e > self.n_m:                       # the operating-point rule fixes the free coordinates
-            from .operating_point import NoOperatingPoint, Rule, solve
+            from .operating_point import NoOperatingPoint, Rule, solve, weights
             Psi = np.array(model["Psi"].subs(at).evalf(), dtype=float)
+            rule = self.rule or Rule(given=False)
+            R_e, J_e, G_e = (self.numeric(model[k]) for k in ("R_e", "J_e", "G_e"))
             try:
-                x, _ = solve(self.rule or Rule(given=False), A, b, np.diag(Psi), 1.0)
+                x, _ = solve(rule, A, b, weights(rule, np.diag(Psi), R_e, J_e, G_e), 1.0)
             except NoOperatingPoint as exc:
                 return f"no operating point at q_d: {exc}"
             return q_d, np.abs(x)
@@ -616,10 +618,14 @@ class _Parser:
         unknown = sorted(set(entries) - set(names))
         if unknown:
             raise self.error("operating_point", unknown[0], f"not an electrical state; they are {names}")
-        if kind == "least_energy":
+        if kind in ("least_energy", "least_input"):
             if entries:
-                raise self.error("operating_point", sorted(entries)[0], "the least-energy rule takes no values")
-            return Rule("least_energy")
+                raise self.error("operating_point", sorted(entries)[0], f"the rule {kind} takes no values")
+            if kind == "least_input" and not all(self.is_zero_matrix(M - sympy.diag(*M.diagonal()))
+                                                 for M in (model["R_e"], model["J_e"], model["G_e"])):
+                raise self.error("operating_point", "rule", "least_input needs diagonal R_e, J_e (= 0) and G_e (the "
+                                                            "input at rest linear in x_e_i^2)")
+            return Rule(kind)
         if len(entries) != self.n_e - self.n_m:
             raise self.error("operating_point", "rule", f"a bias gives n_e - n_m = {self.n_e - self.n_m} coordinate(s), "
                                                         f"not {len(entries)}")

@@ -14,6 +14,8 @@ A_ki = (dPsi/dq_k)_ii / 2: n_m linear equations in n_e unknowns w >= 0. A rule p
   (identical coils on one axis), the load is shared: the least-norm w on those ports. Where B changes along a
   reference, x_e*(t) is not differentiable (a port switches on or off through sqrt(w)): that reference is
   not feasible for this rule.
+- "least_input": the same with the input the equilibrium needs, |u|^2 = sum_i (R_e,ii Psi_ii / G_e,ii)^2 w_i
+  (diagonal R_e, G_e, J_e = 0): the linear program with other weights.
 - "bias": n_e - n_m coordinates are given, each a value (x_e_i = v) or a ratio to another coordinate
   (x_e_i = r x_e_j); the force balance fixes the rest. Smooth in q wherever the solved w stay > 0.
 
@@ -28,7 +30,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-RULES = ("least_energy", "bias")
+RULES = ("least_energy", "least_input", "bias")
+LEAST = ("least_energy", "least_input")
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,8 @@ class Rule:
     def describe(self, names: Sequence[str]) -> str:
         if self.kind == "least_energy":
             return "least electrical energy that holds the force balance" + ("" if self.given else " (the default)")
+        if self.kind == "least_input":
+            return "least input |u|^2 that holds the force balance at rest"
         fixed = [f"{names[i]} = {v:.6g}" for i, v in self.values] + [f"{names[i]} = {r:.6g} {names[j]}"
                                                                       for i, j, r in self.ratios]
         return "bias " + ", ".join(fixed)
@@ -64,11 +69,21 @@ class NoOperatingPoint(ValueError):
     """The rule finds no real x_e holding the force balance."""
 
 
+def weights(rule: Rule, psi: np.ndarray, R_e: np.ndarray, J_e: np.ndarray, G_e: np.ndarray) -> np.ndarray:
+    """The cost per unit of w_i = x_e_i^2 that a "least" rule minimises: the stored energy 1/2 Psi_ii (least_energy;
+    the factor 1/2 does not change the choice) or, at rest, the input u = G_e^-1 (R_e - J_e) Psi x_e (the x_e-row of
+    eq. open-loop elecmech with x_e' = 0), |u|^2 = sum_i ((R_e - J_e)_ii Psi_ii / G_e_ii)^2 w_i for diagonal R_e,
+    J_e (then 0) and G_e (least_input)."""
+    if rule.kind != "least_input":
+        return np.asarray(psi)
+    return (np.diag(R_e - J_e) * np.asarray(psi) / np.diag(G_e)) ** 2
+
+
 def solve(rule: Rule, A: np.ndarray, b: np.ndarray, psi: np.ndarray, sign: float) -> tuple[np.ndarray, tuple]:
-    """(x_e, branch) with A (x_e^2) = b by `rule`; `psi` the diagonal of Psi(q) (least energy), `sign` the side of
+    """(x_e, branch) with A (x_e^2) = b by `rule`; `psi` the cost weights of a "least" rule (`weights`), `sign` the side of
     the solved roots (x_e_sign). The branch names the solved (energized) ports; it changes where x_e is not smooth."""
     n_m, n_e = A.shape
-    if rule.kind == "least_energy":
+    if rule.kind in LEAST:
         vertices = []
         for B in combinations(range(n_e), n_m):
             AB = np.real(A[:, B])
@@ -112,7 +127,7 @@ def rate(rule: Rule, branch: tuple, A: np.ndarray, A_dot: np.ndarray, b_dot: np.
     w = x * x
     rhs = b_dot - A_dot @ w
     x_dot = np.zeros(n_e, dtype=np.result_type(rhs, x))
-    if rule.kind == "least_energy":
+    if rule.kind in LEAST:
         B = list(branch)
         if len(B) == A.shape[0]:
             wB_dot = np.linalg.solve(A[:, B], rhs)

@@ -287,16 +287,21 @@ class Model:
 
     def rule_state(self, q: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, tuple, str]:
         """x_e with A(q) x_e^2 = b by the operating-point rule (components.operating_point): (x_e, branch, how)."""
-        from .operating_point import NoOperatingPoint, solve
+        from .operating_point import NoOperatingPoint, solve, weights
         names = [v.name for v in self.desc.x_e]
         Psi = np.asarray(self.numeric("Psi", self.desc.Psi, self.q)(*q), dtype=float).reshape(self.n_e, self.n_e)
         how = (f"operating point: {self.rule.describe(names)} (x_e not unique: n_e > n_m, "
                "components.operating_point)")
         try:
-            x, branch = solve(self.rule, A, b, np.diag(Psi), self.sign)
+            x, branch = solve(self.rule, A, b, weights(self.rule, np.diag(Psi), *self.electrical_matrices()), self.sign)
         except NoOperatingPoint as exc:
             return None, (), f"{how}: {exc}"
         return x, branch, how
+
+    def electrical_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """R_e, J_e, G_e at the parameter values."""
+        return tuple(np.array(self.at_values(getattr(self.desc, k)).evalf(), dtype=float)   # type: ignore[return-value]
+                     for k in ("R_e", "J_e", "G_e"))
 
     def branch(self, q: np.ndarray, b: np.ndarray) -> tuple:
         """The energized ports the rule chooses at (q, b) (n_e > n_m), () otherwise."""

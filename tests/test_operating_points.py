@@ -58,10 +58,12 @@ def test_a_bias_energizes_both_coils_and_proposition_2_applies():
     assert -b + eta[2] ** 2 / (2 * k) - eta[3] ** 2 / (2 * k) == pytest.approx(0.0, abs=1e-14)
 
 
-@pytest.mark.parametrize("rule", ["bias", "least_energy"])
+@pytest.mark.parametrize("rule", ["bias", "least_energy", "least_input"])
 def test_the_rule_gives_x_e_star_and_its_derivative_along_a_reference(rule, tmp_path):
     """Definition 1: the force balance at every time, and x_e*' = d x_e*/dt (central differences)."""
     path = BALL if rule == "bias" else _least_energy(tmp_path)
+    if rule == "least_input":
+        path.write_text(path.read_text().replace('rule = "least_energy"', 'rule = "least_input"'))
     plant = registry.load(path)[2].plant()
     ref = Sinusoid(offset=0.005, amplitude=0.001, omega=20.0)  # |q''| = 0.4 m/s2 < g: the upper coil stays on
 
@@ -206,3 +208,31 @@ def test_with_least_energy_the_designs_that_apply_run_on_the_upper_coil_alone(tm
         target = 0.005 if design == "Proposition1" else 0.005 + 0.001 * math.sin(5 * t)
         assert abs(q - target) < 0.02 * 0.001, (design, q, target)
         assert all(float(r["plant.x_2"]) == 0.0 for r in rows)        # the lower coil is never energized
+
+
+TWO_COILS_ABOVE = BALL.read_text().replace('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]',
+                                           'Psi = [["(c - q)/k", "0"], ["0", "(c - q)/(2*k)"]]')
+
+
+@pytest.mark.parametrize("rule", ["least_energy", "least_input"])
+def test_least_energy_and_least_input_choose_by_their_costs(rule):
+    """Two coils above the ball, the second with twice the inductance (Psi_22 = (c - q)/(2k); both pull up): per
+    unit of force they store the same energy (a tie, shared at the least |w|), but the second needs less voltage
+    (u_i = R Psi_ii x_i at rest). Both against a scan of the line x_1^2/(2k) + x_2^2/(4k) = b."""
+    text = TWO_COILS_ABOVE
+    start, end = text.index("[operating_point]"), text.index("[controller]")
+    desc = parse(text[:start] + f'[operating_point]\nrule = "{rule}"\n\n' + text[end:], "two_coils.toml")
+    r = check(desc, q_d=0.005)
+    q, R = 0.005, 2.25
+    w2 = np.linspace(0.0, 4 * k * b, 400001)             # x_2^2 from 0 to all of the force on coil 2
+    w1 = 2 * k * b - w2 / 2                              # the force balance
+    psi = np.array([(c - q) / k, (c - q) / (2 * k)])
+    if rule == "least_energy":
+        energy = psi[0] * w1 + psi[1] * w2
+        assert np.ptp(energy) < 1e-12 * energy[0]        # a tie: every split stores the same energy
+        best = int(np.argmin(w1 ** 2 + w2 ** 2))         # shared at the least |w|
+        assert 0 < best < len(w2) - 1
+    else:
+        best = int(np.argmin((R * psi[0]) ** 2 * w1 + (R * psi[1]) ** 2 * w2))
+        assert best == len(w2) - 1                        # coil 2 alone
+    assert np.array(r.x_e_d) ** 2 == pytest.approx([w1[best], w2[best]], rel=1e-5, abs=1e-9)

@@ -23,7 +23,7 @@ from components.device import DESIGNS
 from ..engine.errors import ScenarioError
 
 OPERATING_POINT_HELP = ("how the free electrical coordinates are fixed when n_e > n_m, instead of the file's "
-                        "[operating_point]: least_energy, or bias:NAME=VALUE|NAME=OTHER*RATIO,... "
+                        "[operating_point]: least_energy, least_input, or bias:NAME=VALUE|NAME=OTHER*RATIO,... "
                         "(docs/plant-description.md)")
 
 

@@ -182,6 +182,10 @@ def module_source(desc: Description, source_name: str | None = None) -> str:
     dom_pars = tuple(tuple(s.name for s in desc.parameter_symbols if s in g.free_symbols) for g in desc.domain_margins)
     lines.append(f"    DOMAIN_PARAMETERS = {dom_pars!r}")
     lines.append(f"    x_e_sign = {desc.x_e_sign!r}")
+    if desc.operating_point is not None:                       # n_e > n_m: components.operating_point.Rule
+        lines.append(f"    OPERATING_POINT = {desc.operating_point.as_tuple()!r}")
+    if desc.gamma_source == "derived, scaled":               # Gamma^T q in the unit of x_e: z in J/u, k_c in u^2/J
+        lines.append("    GAMMA_IN_DEVICE_UNITS = True")
     lines.append(f"    constant_mass = {desc.constant_mass!r}")
     lines.append("")
     lines.append(_setup(desc, w, one))

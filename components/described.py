@@ -17,6 +17,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from . import operating_point as _op
 from .device import DESIGNS, Design, Device, VariableSpec
 from .parameters import Parameter, resolve
 from .ph_plant import DomainError, EMPlant, Jet, OneDOFPlant
@@ -53,6 +54,8 @@ class _Described:
     """The description's domain inequalities as written (`q < c`); margin j > 0 is inequality j."""
     DOMAIN_PARAMETERS: tuple[tuple[str, ...], ...] = ()
     """The parameters in each inequality (named with their values in a DomainError)."""
+    GAMMA_IN_DEVICE_UNITS: bool = False
+    """Gamma, phi derived in the device's scale (Gamma^T q in the unit of x_e): z (eq. z) has a unit and so has k_c."""
     domain_reasons: tuple[str, ...] = ()
     """What a violation of each inequality means physically (optional, appended to the DomainError)."""
     params: dict[str, float]
@@ -171,9 +174,11 @@ class DescribedPlant(_Described, EMPlant):
         complex jet: complex step). Differentiating in time: A x_e*' = -F*' - 1/2 x_e*^T (dPsi_k/dt) x_e*
         with A_ki = (dPsi/dq_k(q*) x_e*)_i.
         """
-        if self.n_e != self.n_m:
-            raise NotImplementedError(f"{self.name}: feasible_state needs n_e = n_m (here n_m = {self.n_m}, "
-                                      f"n_e = {self.n_e}): x_e* is not determined by the mechanical equations")
+        if self.n_e > self.n_m:
+            return self._feasible_by_rule(jet)
+        if self.n_e < self.n_m:
+            raise NotImplementedError(f"{self.name}: feasible_state needs n_e >= n_m (here n_m = {self.n_m}, "
+                                      f"n_e = {self.n_e}): the force balance is overdetermined")
         q, qd, qdd, qddd = (np.asarray(v).reshape(-1) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
         q_real = np.real(q).astype(float)
         if not all(np.real(g) > 0 for g in self.margins(q_real)):
@@ -191,6 +196,51 @@ class DescribedPlant(_Described, EMPlant):
         x_dot = np.linalg.solve(A, -F_dot - 0.5 * np.einsum("i,kij,j->k", x, dPsi_dt, x))
         p = np.linalg.solve(self.M_inv(q), qd)             # p* = M(q*) q*'
         return np.concatenate([q, p, x]), x_dot
+
+    OPERATING_POINT: tuple | None = None
+    """The description's operating-point rule (components.operating_point.Rule.as_tuple), n_e > n_m; None: the
+    least electrical energy (the default)."""
+
+    def operating_rule(self) -> _op.Rule:
+        return _op.Rule.from_tuple(self.OPERATING_POINT) if self.OPERATING_POINT else _op.Rule(given=False)
+
+    def _feasible_by_rule(self, jet: Jet, branch_only: bool = False) -> Any:
+        """(eta*, x_e*') for n_e > n_m: x_e* by the operating-point rule (components.operating_point) from the force
+        balance A(q*) w = -F*, A_ki = (dPsi/dq_k)_ii / 2, w = x_e*^2, and x_e*' from its time derivative."""
+        q, qd, qdd, qddd = (np.asarray(v).reshape(-1) for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
+        q_real = np.real(q).astype(float)
+        if not all(np.real(g) > 0 for g in self.margins(q_real)):
+            self._domain_error(q_real)
+        dPsi, Psi = np.asarray(self.dPsi(q)), np.asarray(self.Psi(q))
+        off = [D - np.diag(np.diag(D)) for D in (*np.real(dPsi), np.real(Psi))]
+        if any(np.any(o != 0) for o in off):
+            raise ValueError(f"{self.name}: an operating point for n_e = {self.n_e} > n_m = {self.n_m} needs "
+                             "diagonal Psi(q) and dPsi/dq_k (components.operating_point): not available for "
+                             "coupled coils")
+        A = np.einsum("kii->ki", dPsi) / 2
+        F, F_dot = self.force_jet(q, qd, qdd, qddd)
+        rule = self.operating_rule()
+        names = [v.name for v in self.VARIABLES["x_e"]]
+        try:
+            cost = _op.weights(rule, np.diag(Psi), self.R_e, self.J_e, self.G_e)
+            x, branch = _op.solve(rule, A, -np.asarray(F), cost, self.x_e_sign)
+        except _op.NoOperatingPoint as exc:
+            where = ", ".join(f"{v.name}* = {x_:.6g}" for v, x_ in zip(self.VARIABLES["q"], q_real))
+            raise ValueError(f"{self.name}: infeasible reference at {where} with the operating point "
+                             f"{rule.describe(names)}: {exc} (Definition 1)") from None
+        if branch_only:
+            return branch
+        A_dot = np.einsum("klii,l->ki", np.asarray(self.d2Psi(q)), qd) / 2
+        x_dot = _op.rate(rule, branch, A, A_dot, -np.asarray(F_dot), x)
+        p = np.linalg.solve(self.M_inv(q), qd)
+        return np.concatenate([q, p, x]), x_dot
+
+    def electrical_branch(self, jet: Jet) -> tuple:
+        """The energized ports of x_e*(jet) chosen by the operating-point rule (n_e > n_m; () otherwise): where it
+        changes along a reference x_e*(t) is not differentiable."""
+        if self.n_e <= self.n_m:
+            return ()
+        return self._feasible_by_rule(jet, branch_only=True)
 
     def _solve_real(self, dPsi: np.ndarray, F: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Real x with -1/2 x^T dPsi_k x = F_k, by damped Newton from x_e_sign * (a common magnitude)."""
@@ -238,8 +288,22 @@ def _electrical_damping_unit(a: str, b: str) -> str:
     return f"{a}2/J/s" if a == b else f"{a}.{b}/J/s"
 
 
-def gain_unit(gain: str, i: int, j: int, q: Sequence[VariableSpec], x_e: Sequence[VariableSpec]) -> str:
-    """The unit of entry (i, j) of a gain (0-based)."""
+def _input_weight_unit(a: str, b: str) -> str:
+    """unit(u_i) unit(u_j) / J, the unit of K_c (Theta_2 = 1/2 (z - L)^T K_c (z - L) [J], z_i in J/unit(u_i)):
+    V/C for voltages, A/Wb for currents."""
+    if a == b == "V":
+        return "V/C"
+    if a == b == "A":
+        return "A/Wb"
+    return f"{a}2/J" if a == b else f"{a}.{b}/J"
+
+
+def gain_unit(gain: str, i: int, j: int, q: Sequence[VariableSpec], x_e: Sequence[VariableSpec],
+              u: Sequence[VariableSpec] | None = None) -> str:
+    """The unit of entry (i, j) of a gain (0-based), from the units of the description's variables
+    (docs/derivations.md, "Units of the gains"). k_c needs the inputs u."""
+    if gain == "k_c" and u is not None:
+        return _input_weight_unit(u[i].unit, u[j].unit)
     if gain == "q_d":
         return q[i].unit
     if gain == "D_d":
@@ -289,7 +353,8 @@ def make_device(plant_cls: Any, defaults: Mapping[str, list], forms: Mapping[str
             what = GAIN_TEXT[gain] + (f", entry ({i + 1}, {j + 1})" if name != gain else "")
             if gain == "q_d" and name != gain:
                 what = f"{GAIN_TEXT[gain]} {V['q'][i].name}_d"
-            out.append(Parameter(name, float(values[i][j]), gain_unit(gain, i, j, V["q"], V["x_e"]), what, condition))
+            unit = gain_unit(gain, i, j, V["q"], V["x_e"], V["u"] if plant_cls.GAMMA_IN_DEVICE_UNITS else None)
+            out.append(Parameter(name, float(values[i][j]), unit, what, condition))
         specs[gain] = out
 
     def matrix(gain: str, g: Mapping[str, float]) -> np.ndarray | None:

@@ -21,7 +21,7 @@ import tokenize
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import sympy
@@ -37,9 +37,9 @@ FUNCTIONS: dict[str, Any] = {
 }
 CONDITIONS = ("> 0", ">= 0", "any")
 MODEL_REQUIRED = ("M", "V", "Psi", "R_m", "J_e", "R_e", "G_e")
-MODEL_OPTIONAL = ("domain", "Gamma", "phi", "x_e_sign")
+MODEL_OPTIONAL = ("domain", "Gamma", "phi", "x_e_sign", "u_max")
 VARIABLE_KINDS = ("q", "p", "x_e", "u")
-TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller"}
+TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller", "operating_point"}
 CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c", "W")
 NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 DEVICE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*\Z")
@@ -97,6 +97,12 @@ class Description:
     gains: dict[str, sympy.Matrix] = field(default_factory=dict)
     """The [controller] table's gains as matrices (q_d a column), in the [controller.parameters] symbols."""
     gain_parameters: dict[str, Parameter] = field(default_factory=dict)
+    u_max: tuple[float, ...] | None = None
+    operating_point: Any = None
+    """The [operating_point] rule (components.operating_point.Rule) for n_e > n_m; None: the default, the least
+    electrical energy."""
+    """The actuator's range |u_i| <= u_max_i, in the units of u (optional; `plant check` compares the inputs the
+    designs command at the start with it)."""
 
     @property
     def n_m(self) -> int:
@@ -176,13 +182,16 @@ class _Parser:
         if not isinstance(controller, dict):
             raise self.error("controller", "controller", "must be a table")
         self.controller_table(controller, set(variables["names"]) | set(parameters))
+        self.rule = self.operating_point_table(data.get("operating_point"), variables["x_e"], model)
+        if model["gamma_source"] == "derived":
+            model["Gamma"], model["phi"], model["gamma_source"] = self.scaled_factorization(model)
         return Description(
             name=name, description=data["description"], source=self.source,
             q=variables["q"], p=variables["p"], x_e=variables["x_e"], u=variables["u"], parameters=parameters,
             **model, q_symbols=self.q_sym, p_symbols=tuple(self.symbols[v.name] for v in variables["p"]),
             x_e_symbols=self.x_sym, u_symbols=tuple(self.symbols[v.name] for v in variables["u"]),
             parameter_symbols=self.par_sym, controller=controller, notes=tuple(self.notes),
-            gains=self.gain_matrices, gain_parameters=self.gain_parameters)
+            gains=self.gain_matrices, gain_parameters=self.gain_parameters, operating_point=self.rule)
 
     def variables(self, table: Any) -> dict[str, Any]:
         if not isinstance(table, dict):
@@ -357,7 +366,19 @@ class _Parser:
         if isinstance(sign, bool) or sign not in (1, -1):
             raise self.error("model", "x_e_sign", f"{sign!r} must be 1 or -1 (the root x_e* of Definition 1 the reference uses)")
         return dict(M=M, V=V, Psi=Psi, R_m=R_m, J_e=J_e, R_e=R_e, G_e=G_e, domain=domain, domain_margins=margins,
-                    domain_text=texts, Gamma=Gamma, phi=phi, gamma_source=source, x_e_sign=float(sign))
+                    domain_text=texts, Gamma=Gamma, phi=phi, gamma_source=source, x_e_sign=float(sign),
+                    u_max=self.u_max(table.get("u_max")))
+
+    def u_max(self, value: Any) -> tuple[float, ...] | None:
+        """The actuator's range: a number per input (a single number for n_e = 1), each finite and > 0."""
+        if value is None:
+            return None
+        values = value if isinstance(value, list) else [value]
+        if len(values) != self.n_e or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                              and math.isfinite(v) and v > 0 for v in values):
+            raise self.error("model", "u_max", f"{value!r} must be {self.n_e} finite number(s) > 0, one per input "
+                                               "(the range |u_i| <= u_max_i)")
+        return tuple(float(v) for v in values)
 
     def domain(self, entries: Any) -> tuple[tuple, tuple, tuple]:
         if not isinstance(entries, list) or not all(isinstance(s, str) for s in entries):
@@ -521,6 +542,106 @@ class _Parser:
                           "phi = sum x_e_i^3 / 3")
         return Gamma, phi, "derived"
 
+    def scaled_factorization(self, model: dict) -> tuple:
+        """The derived Gamma, phi in the device's scale (docs/plant-description.md, docs/derivations.md section 12):
+        Gamma = Gamma_0 S, phi = sum_i x_e_i^3 / (3 s_i), S = diag(s), with s_i = |x_e_d_i| / |(Gamma_0^T q_d)_i|
+        at the operating point (q_d of [controller], x_e_d of the set E there, at the default parameters), so that
+        Gamma^T q_d and x_e_d have the same magnitude, port by port. Gamma grad phi = Gamma_0 grad phi_0: eq.
+        (assHereg) holds for every S. A port whose s_i is undefined keeps s_i = 1 (the paper's Section 7.2)."""
+        Gamma0, phi0 = model["Gamma"], model["phi"]
+        point = self.operating_point(model)
+        if isinstance(point, str):
+            self.notes.append(f"Gamma, phi: not scaled ({point}): the paper's Section 7.2 form")
+            return Gamma0, phi0, "derived"
+        q_d, x_e_d = point
+        g0 = np.array(Gamma0.subs(self.defaults).evalf(), dtype=float).T @ q_d
+        scales = []
+        for i in range(self.n_e):
+            ok = abs(g0[i]) > 0 and abs(x_e_d[i]) > 0 and math.isfinite(abs(x_e_d[i]) / abs(g0[i]))
+            scales.append(sympy.Rational(f"{abs(x_e_d[i]) / abs(g0[i]):.6g}") if ok else sympy.Integer(1))
+        Gamma = Gamma0 * sympy.diag(*scales)
+        phi = sum((xi ** 3 / (3 * s_i) for xi, s_i in zip(self.x_sym, scales)), sympy.Integer(0))
+        self.notes.append("Gamma, phi: scaled to the operating point q_d = " + _list(q_d) + ", x_e_d = " + _list(x_e_d)
+                          + ": s = " + _list([float(v) for v in scales]) + " (Gamma = Gamma_0 diag(s), "
+                          "phi = sum x_e_i^3 / (3 s_i), Gamma^T q_d = |x_e_d| port by port)")
+        return Gamma, phi, "derived, scaled"
+
+    def operating_point(self, model: dict) -> tuple[np.ndarray, np.ndarray] | str:
+        """(q_d, x_e_d) at the default parameters for the scaling of Gamma, phi: q_d the [controller] q_d (numbers),
+        x_e_d_i = sqrt(w_i) with A(q_d) w = -grad V(q_d), A_ki = dPsi_ii/dq_k / 2 (the p-row at rest, eq.
+        open-loop elecmech); a reason (str) where there is none."""
+        q_gain = self.gain_matrices.get("q_d")
+        if q_gain is None or q_gain.free_symbols:
+            return "no [controller] q_d given as numbers"
+        q_d = np.array(q_gain.evalf(), dtype=float).reshape(-1)
+        at = {**self.defaults, **dict(zip(self.q_sym, q_d))}
+        dPsi = [model["Psi"].diff(qk) for qk in self.q_sym]
+        A = np.array([[float(dPsi[k][i, i].subs(at)) / 2 for i in range(self.n_e)] for k in range(self.n_m)])
+        b = -np.array([float(sympy.diff(model["V"], qk).subs(at)) for qk in self.q_sym])
+        if self.n_e > self.n_m:                       # the operating-point rule fixes the free coordinates
+            from .operating_point import NoOperatingPoint, Rule, solve, weights
+            Psi = np.array(model["Psi"].subs(at).evalf(), dtype=float)
+            rule = self.rule or Rule(given=False)
+            R_e, J_e, G_e = (self.numeric(model[k]) for k in ("R_e", "J_e", "G_e"))
+            try:
+                x, _ = solve(rule, A, b, weights(rule, np.diag(Psi), R_e, J_e, G_e), 1.0)
+            except NoOperatingPoint as exc:
+                return f"no operating point at q_d: {exc}"
+            return q_d, np.abs(x)
+        if self.n_e != self.n_m or abs(np.linalg.det(A)) == 0:
+            return "x_e_d is not fixed by the force balance at q_d (n_e < n_m or A(q_d) singular)"
+        w = np.linalg.solve(A, b)
+        if not np.all(w > 0):
+            return f"x_e_d^2 = {_list(w)} at q_d has an entry <= 0"
+        return q_d, np.sqrt(w)
+
+    def operating_point_table(self, table: Any, x_e: Sequence[VariableSpec], model: dict) -> Any:
+        """[operating_point]: rule = "least_energy" | "bias"; for a bias, n_e - n_m entries <x_e name> = value or
+        [<x_e name>, ratio] (components.operating_point.Rule). Only for n_e > n_m with diagonal Psi, dPsi/dq_k."""
+        from .operating_point import RULES, Rule
+        if table is None:
+            return None
+        if not isinstance(table, dict):
+            raise self.error("operating_point", "operating_point", "must be a table")
+        if self.n_e <= self.n_m:
+            raise self.error("operating_point", "rule", f"n_e = {self.n_e} <= n_m = {self.n_m}: the force balance fixes "
+                                                        "x_e (where it has a solution); there is nothing to choose")
+        dPsi = [model["Psi"].diff(qk) for qk in self.q_sym]
+        if not all(self.is_zero_matrix(D - sympy.diag(*D.diagonal())) for D in [*dPsi, model["Psi"]]):
+            raise self.error("operating_point", "rule", "needs Psi(q) and every dPsi/dq_k diagonal (the force balance "
+                                                        "linear in x_e_i^2, components.operating_point)")
+        kind = table.get("rule")
+        if kind not in RULES:
+            raise self.error("operating_point", "rule", f"{kind!r} is not one of {list(RULES)}")
+        names = [v.name for v in x_e]
+        entries = {k: v for k, v in table.items() if k != "rule"}
+        unknown = sorted(set(entries) - set(names))
+        if unknown:
+            raise self.error("operating_point", unknown[0], f"not an electrical state; they are {names}")
+        if kind in ("least_energy", "least_input"):
+            if entries:
+                raise self.error("operating_point", sorted(entries)[0], f"the rule {kind} takes no values")
+            if kind == "least_input" and not all(self.is_zero_matrix(M - sympy.diag(*M.diagonal()))
+                                                 for M in (model["R_e"], model["J_e"], model["G_e"])):
+                raise self.error("operating_point", "rule", "least_input needs diagonal R_e, J_e (= 0) and G_e (the "
+                                                            "input at rest linear in x_e_i^2)")
+            return Rule(kind)
+        if len(entries) != self.n_e - self.n_m:
+            raise self.error("operating_point", "rule", f"a bias gives n_e - n_m = {self.n_e - self.n_m} coordinate(s), "
+                                                        f"not {len(entries)}")
+        values, ratios = [], []
+        for name, v in entries.items():
+            i = names.index(name)
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                values.append((i, float(v)))
+            elif (isinstance(v, list) and len(v) == 2 and v[0] in names and v[0] not in entries
+                  and isinstance(v[1], (int, float)) and not isinstance(v[1], bool) and math.isfinite(v[1]) and v[1] != 0):
+                ratios.append((i, names.index(v[0]), float(v[1])))
+            else:
+                raise self.error("operating_point", name, f"{v!r} must be a finite value or [<x_e name>, ratio] with a "
+                                                          "solved coordinate and a ratio != 0")
+        return Rule("bias", tuple(values), tuple(ratios))
+
     # ---- [controller] --------------------------------------------------------------------------------
     def controller_table(self, table: dict, taken: set[str]) -> None:
         """Syntax of the [controller] table (gain defaults; values are checked when a Device is built)."""
@@ -577,3 +698,39 @@ def gain_table(desc: Description) -> tuple[dict[str, list[list[float]]], dict[st
         defaults[gain] = [[float(x) for x in row] for row in value]
     used = {n for _, names in forms.values() for n in names}
     return defaults, forms, {n: p for n, p in desc.gain_parameters.items() if n in used}
+
+
+def _list(values: Any) -> str:
+    return "(" + ", ".join(f"{float(v):.6g}" for v in values) + ")"
+
+
+def with_operating_point(text: str, spec: str, source: str = "<string>") -> str:
+    """The description `text` with its [operating_point] table replaced by `spec` (the command line's choice):
+    "least_energy", or "bias:NAME=VALUE,..." where VALUE is a number or OTHER*RATIO (x_2=0.5, x_2=x_1*0.4).
+    A DescriptionError names a malformed spec; the result is checked when it is parsed."""
+    kind, _, rest = spec.partition(":")
+    kind = kind.strip()
+    lines = ["[operating_point]", f"rule = {kind!r}".replace("'", '"')]
+    for item in filter(None, (part.strip() for part in rest.split(","))):
+        name, eq, value = (v.strip() for v in item.partition("="))
+        other, star, ratio = value.partition("*")
+        if not (eq and NAME.match(name)):
+            raise DescriptionError(f"{source}: [operating_point] {item}: not NAME=VALUE or NAME=OTHER*RATIO")
+        try:
+            entry = f'["{other.strip()}", {float(ratio)!r}]' if star else repr(float(value))
+        except ValueError:
+            raise DescriptionError(f"{source}: [operating_point] {item}: not NAME=VALUE or NAME=OTHER*RATIO") from None
+        if star and not NAME.match(other.strip()):
+            raise DescriptionError(f"{source}: [operating_point] {item}: not NAME=OTHER*RATIO")
+        lines.append(f"{name} = {entry}")
+    kept, skipping = [], False
+    for line in text.splitlines():
+        header = line.strip()
+        if header.startswith("["):
+            skipping = header.split("#")[0].strip() == "[operating_point]"
+        if not skipping:
+            kept.append(line)
+    if re.search(r"^\s*operating_point\s*=", "\n".join(kept), re.MULTILINE):
+        raise DescriptionError(f"{source}: [operating_point] operating_point: given inline in the file; write it as a "
+                               "table to override it from the command line")
+    return "\n".join(kept) + "\n\n" + "\n".join(lines) + "\n"

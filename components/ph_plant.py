@@ -211,9 +211,18 @@ class EMPlant:
     """Which root of the electrical equilibrium equation the reference uses (+1: positive charge / flux)."""
 
     def equilibrium(self, q_d: np.ndarray) -> np.ndarray:
-        """Assignable equilibrium eta_d = (q_d, 0, x_e_d) of the set E (Section 3)."""
+        """Assignable equilibrium eta_d = (q_d, 0, x_e_d) of the set E (Section 3).
+
+        At rest the p-row of eq. (open-loop elecmech) reads grad V(q_d) + grad_q H_e(q_d, x_e_d) = 0. Where the
+        potential holds the position alone (grad V(q_d) = 0, e.g. a relaxed spring) x_e_d = 0 solves it (the
+        electrical force is quadratic in x_e), whatever root `feasible_state` would look for."""
+        q = np.atleast_1d(np.asarray(q_d, dtype=float))
         z = np.zeros(self.n_m)
-        return self.feasible_state(Jet(np.atleast_1d(np.asarray(q_d, dtype=float)), z, z, z))[0]
+        if q.shape == (self.n_m,) and np.all(np.isfinite(q)) and not np.any(self.grad_V(q)):
+            eta = np.concatenate([q, z, np.zeros(self.n_e)])
+            self.check_state(eta)
+            return eta
+        return self.feasible_state(Jet(q, z, z, z))[0]
 
 
 class OneDOFPlant(EMPlant):

@@ -82,6 +82,16 @@ class DesignVerdict:
     name: str
     applies: bool
     reason: str
+    start: str = ""
+    """What the design commands at the scenario's initial state and its fastest rate (emcosim.devices.start)."""
+    exceeds_actuator: bool = False
+    """Its start input leaves the description's actuator range ([model] u_max)."""
+
+    @property
+    def status(self) -> str:
+        if not self.applies:
+            return "does not apply"
+        return "applies, but exceeds the actuator" if self.exceeds_actuator else "applies"
 
 
 @dataclass
@@ -96,6 +106,8 @@ class Report:
     assumptions: list[Verdict]
     design_verdicts: list[DesignVerdict]
     box: str
+    operating_point: str = ""
+    """n_e > n_m: the rule that fixed the free electrical coordinates at every point tested."""
 
     @property
     def designs(self) -> list[str]:
@@ -115,7 +127,8 @@ class Report:
         return {"plant": self.plant, "source": self.source, "parameters": self.parameters, "q_d": self.q_d,
                 "x_e_d": self.x_e_d, "box": self.box, "setpoint": verdict(self.setpoint),
                 "reference": verdict(self.reference), "assumptions": [verdict(a) for a in self.assumptions],
-                "designs": [asdict(d) for d in self.design_verdicts], "applies": self.designs}
+                "designs": [{**asdict(d), "status": d.status} for d in self.design_verdicts], "applies": self.designs,
+                "operating_point": self.operating_point}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
@@ -124,6 +137,8 @@ class Report:
         lines = [f"Plant check: {self.plant} ({self.source})",
                  "  parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in self.parameters.items()),
                  f"  numeric checks: {self.box}"]
+        if self.operating_point:
+            lines.append(f"  operating point (n_e > n_m): {self.operating_point}; Assumptions 1-4 are tested there")
         for v in [self.setpoint, self.reference, *self.assumptions]:
             if v is None:
                 continue
@@ -133,7 +148,9 @@ class Report:
                 lines.append(f"  [{t.verdict:>11}] {t.condition} -- {t.method}{detail}")
         lines.append("Designs:")
         for d in self.design_verdicts:
-            lines.append(f"  {d.name:<12} {'applies' if d.applies else 'does not apply'}: {d.reason}")
+            lines.append(f"  {d.name:<12} {d.status}: {d.reason}")
+            if d.start:
+                lines.append(f"  {'':<12} {d.start}")
         return "\n".join(lines)
 
 
@@ -235,10 +252,15 @@ class Model:
         """A real x_e with grad_q H_e(q, x_e) = b, numerically; (None, why) if there is none (or none was found)."""
         if self.diagonal:
             A = np.asarray(self.numeric("A", self.A, self.q)(*q), dtype=float).reshape(self.n_m, self.n_e)
+            if self.n_e > self.n_m and self.psi_diagonal:       # the operating-point rule (n_e > n_m)
+                x, branch, how = self.rule_state(q, A, b)
+                if x is None:
+                    return None, how
+                return x, how
             if self.n_m == self.n_e and np.linalg.cond(A) < 1e12:
                 w = np.linalg.solve(A, b)
                 how = "x_e_i^2 = w_i from the linear system A(q) w = b (A_ki = dPsi_ii/dq_k / 2)"
-            else:                                    # n_e != n_m: x_e not unique (or overdetermined)
+            else:                                    # n_e < n_m: overdetermined
                 tol = 1e-9 * max(float(np.linalg.norm(b)), 1e-300)
                 w = np.linalg.lstsq(A, b, rcond=None)[0]
                 how = "x_e_i^2 = w_i, the minimum-norm w > 0 solving A(q) w = b (not unique: n_e != n_m)"
@@ -251,6 +273,42 @@ class Model:
                 return None, f"x_e^2 = w = {_numbers(w)} has a negative entry: no real x_e"
             return self.sign * np.sqrt(w), how
         return self._electrical_state_search(q, b)
+
+    @property
+    def rule(self) -> Any:
+        """The description's operating-point rule (n_e > n_m), or the default least electrical energy."""
+        from .operating_point import Rule
+        return getattr(self.desc, "operating_point", None) or Rule(given=False)
+
+    @property
+    def psi_diagonal(self) -> bool:
+        Psi = self.desc.Psi
+        return all(_is_zero(Psi[i, j]) for i in range(self.n_e) for j in range(self.n_e) if i != j)
+
+    def rule_state(self, q: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, tuple, str]:
+        """x_e with A(q) x_e^2 = b by the operating-point rule (components.operating_point): (x_e, branch, how)."""
+        from .operating_point import NoOperatingPoint, solve, weights
+        names = [v.name for v in self.desc.x_e]
+        Psi = np.asarray(self.numeric("Psi", self.desc.Psi, self.q)(*q), dtype=float).reshape(self.n_e, self.n_e)
+        how = (f"operating point: {self.rule.describe(names)} (x_e not unique: n_e > n_m, "
+               "components.operating_point)")
+        try:
+            x, branch = solve(self.rule, A, b, weights(self.rule, np.diag(Psi), *self.electrical_matrices()), self.sign)
+        except NoOperatingPoint as exc:
+            return None, (), f"{how}: {exc}"
+        return x, branch, how
+
+    def electrical_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """R_e, J_e, G_e at the parameter values."""
+        return tuple(np.array(self.at_values(getattr(self.desc, k)).evalf(), dtype=float)   # type: ignore[return-value]
+                     for k in ("R_e", "J_e", "G_e"))
+
+    def branch(self, q: np.ndarray, b: np.ndarray) -> tuple:
+        """The energized ports the rule chooses at (q, b) (n_e > n_m), () otherwise."""
+        if not (self.diagonal and self.n_e > self.n_m and self.psi_diagonal):
+            return ()
+        A = np.asarray(self.numeric("A", self.A, self.q)(*q), dtype=float).reshape(self.n_m, self.n_e)
+        return self.rule_state(q, A, b)[1]
 
     def _electrical_state_search(self, q: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, str]:
         g = self.numeric("grad_q_H_e", self.grad_q_H_e, (*self.q, *self.x))
@@ -379,6 +437,7 @@ def check_reference(model: Model, reference: Any, horizon: float | None,
     what = f"{len(ts)} times evenly in [0, {horizon:.6g}] s"
     v = Verdict(f"Reference feasible (Definition 1), {what}")
     etas, ok_times, outside, infeasible = [], [], [], []
+    branches: list[tuple] = []
     how = ""
     for t in ts:
         jet = jet_of(float(t))
@@ -386,13 +445,15 @@ def check_reference(model: Model, reference: Any, horizon: float | None,
         if not model.in_domain(q):
             outside.append(t)
             continue
-        x, how_t = model.electrical_state(q, model.required_force(q, qd, qdd))
+        force = model.required_force(q, qd, qdd)
+        x, how_t = model.electrical_state(q, force)
         if x is None:
             infeasible.append((t, how_t))
             continue
         how = how_t
         etas.append(np.concatenate([q, model.momentum(q, qd), x]))
         ok_times.append(t)
+        branches.append(model.branch(q, force))
     v.tests.append(Test("q*(t) inside the domain " + " and ".join(model.desc.domain_text or ["(no domain)"]),
                         FAILS if outside else HOLDS, f"numerically at {what}",
                         f"outside at t = {_numbers(outside[:5])} s" if outside else ""))
@@ -405,6 +466,13 @@ def check_reference(model: Model, reference: Any, horizon: float | None,
     else:
         v.tests.append(Test("real x_e*(t) with grad_q H_e(q*, x_e*) = -(p*' + R_m q*' + grad V + grad_q T)", HOLDS,
                             f"numerically at {what}", how))
+    if model.n_e > model.n_m:
+        from .operating_point import switches
+        names = [x.name for x in model.desc.x_e]
+        why = switches(ok_times, branches, names)
+        v.tests.append(Test("x_e*(t) of the operating-point rule is C^3 (smooth: no port switches on or off)",
+                            FAILS if why else HOLDS, f"the energized ports at {what}; {model.rule.describe(names)}",
+                            why or ""))
     return v, Trajectory(ts, etas, np.array(ok_times), f"reference ({what})")
 
 
@@ -724,7 +792,8 @@ def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Any 
                                 why_not)]
     return Report(desc.name, desc.source, dict(model.values), q_list,
                   None if x_num is None else [float(x) for x in x_num], setpoint, ref_verdict, assumptions,
-                  designs(assumptions, setpoint, ref_verdict, q_list is not None), box_text)
+                  designs(assumptions, setpoint, ref_verdict, q_list is not None), box_text,
+                  model.rule.describe([v.name for v in desc.x_e]) if model.n_e > model.n_m else "")
 
 
 def _constant(etas: list[np.ndarray]) -> Trajectory | None:

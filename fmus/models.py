@@ -124,11 +124,17 @@ def module_device(module: ModuleType, designs: Sequence[str] | None = None) -> D
     return device
 
 
-def default_initial_state(device: Device) -> tuple[float, ...]:
+def default_initial_state(device: Device, q_d: Sequence[float] | None = None) -> tuple[float, ...]:
     """A plant FMU's start values of q_0, p_0, x_e_0 when the device module gives none (INITIAL_STATE): the
-    equilibrium eta_d = (q_d, 0, x_e_d) (EMPlant.equilibrium) at the default q_d of the first regulation
-    design, else eta = 0; ValueError if that is not admissible (check_state)."""
+    equilibrium eta_d = (q_d, 0, x_e_d) (EMPlant.equilibrium) at `q_d` (a description's [controller] q_d, whether
+    or not a regulation design applies), else at the default q_d of the first regulation design, else eta = 0;
+    ValueError if that is not admissible (check_state)."""
     plant = device.plant()
+    if q_d is not None:
+        try:
+            return tuple(float(v) for v in plant.equilibrium(np.asarray(q_d, dtype=float)))
+        except (ValueError, ArithmeticError, NotImplementedError):
+            pass
     for design in device.designs.values():
         names = ["q_d"] if "q_d" in design.gains else [f"q_d_{i + 1}" for i in range(device.n_m)]
         if not design.tracking and all(n in design.gains for n in names):
@@ -194,7 +200,9 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
     unknown = [d for d in chosen if d not in device.designs]
     if unknown:
         raise ValueError(f"{device.name}: no design(s) {unknown}; the designs of the device: {sorted(device.designs)}")
-    initial = tuple(float(v) for v in getattr(module, "INITIAL_STATE", None) or default_initial_state(device))
+    gain_q_d = getattr(module, "GAIN_DEFAULTS", {}).get("q_d")          # a described device's [controller] q_d
+    initial = tuple(float(v) for v in getattr(module, "INITIAL_STATE", None)
+                    or default_initial_state(device, None if gain_q_d is None else [row[0] for row in gain_q_d]))
     if len(initial) != len(device.states):
         raise ValueError(f"{device.name}: INITIAL_STATE has {len(initial)} entries, expected {len(device.states)} "
                          f"({', '.join(v.name for v in device.states)})")

@@ -139,7 +139,11 @@ def test_bar_equals_hand_written():
         q = eta[:2]
         for fn in ("M_inv", "V", "grad_V", "hess_V", "Psi", "dPsi", "d2Psi"):
             assert close(getattr(G, fn)(q), getattr(Hw, fn)(q)), fn
-        assert close(G.Gamma, Hw.Gamma) and close(G.grad_phi(eta[4:]), Hw.grad_phi(eta[4:]))
+        # the derived factorization is the hand-written one rescaled per port (Gamma_0 S, phi_0 / S): the product
+        # of eq. (assHereg) is the same, and S is diagonal and positive
+        assert close(G.Gamma @ G.grad_phi(eta[4:]), Hw.Gamma @ Hw.grad_phi(eta[4:]))
+        S = G.Gamma / Hw.Gamma
+        assert close(S, S[:1].repeat(2, axis=0)) and np.all(S > 0)
         assert close(G.f(eta, np.ones(2)), Hw.f(eta, np.ones(2))) and close(G.jacobian(eta), Hw.jacobian(eta))
     ref = VectorSinusoid([0.004, 0.01], [0.001, 0.005], [3.0, 2.0], [0.0, 0.5])
     for t in (0.0, 0.3, 1.1):
@@ -242,7 +246,7 @@ def test_unequal_dimensions_refuse_feasible_state():
         .replace('G_e = [["1", "0"], ["0", "1"]]', 'G_e = "1"').replace("k_c = [[20.0, 0.0], [0.0, 20.0]]", "k_c = 20.0")
     P = codegen.plant_class(parse(text))()
     z = np.zeros(2)
-    with pytest.raises(NotImplementedError, match="n_e = n_m"):
+    with pytest.raises(NotImplementedError, match="n_e >= n_m"):
         P.feasible_state(Jet(z, z, z, z))
 
 

@@ -1,4 +1,5 @@
 """Plant descriptions: the issue's file builds as written, and every wrong description is refused by name."""
+import numpy as np
 import pytest
 import sympy
 
@@ -61,10 +62,15 @@ def test_package_files_decide_psi_symbolically():
 
 def test_two_by_two_description():
     d = parse(BAR_TOML, "bar.toml")
-    assert (d.n_m, d.n_e) == (2, 2) and d.gamma_source == "derived"
+    assert (d.n_m, d.n_e) == (2, 2) and d.gamma_source == "derived, scaled"
     k, l_ = sympy.Symbol("k", positive=True), sympy.Symbol("l", positive=True)
+    # Section 7.2's Gamma_0 = [[1, 1], [l, -l]] / (2k), rescaled per port so that Gamma^T q_d = x_e_d: at
+    # q_d = (0.005, 0.01) both coils carry x_e_d = sqrt(k b) (z-row: (w_1 + w_2)/(2k) = b; theta-row: w_1 = w_2)
     expected = sympy.Matrix([[1, 1], [l_, -l_]]) / (2 * k)
-    assert sympy.simplify(d.Gamma - expected) == sympy.zeros(2, 2)
+    ratio = sympy.simplify(d.Gamma.multiply_elementwise(expected.applyfunc(lambda e: 1 / e)))
+    assert ratio[0, 0] == ratio[1, 0] and ratio[0, 1] == ratio[1, 1] and ratio[0, 0].is_number
+    G = np.array(d.Gamma.subs(d.defaults).evalf(), dtype=float)
+    assert G.T @ np.array([0.005, 0.01]) == pytest.approx([np.sqrt(0.5 * 1.962)] * 2, rel=1e-5)
     assert any(n.startswith("Psi") and "symbolically" in n for n in d.notes)
 
 

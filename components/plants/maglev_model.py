@@ -46,7 +46,7 @@ class Maglev(_DescribedOneDOF):
         _self.J_e = _np.array([[0.0]], dtype=float)
         _self.R_e = _np.array([[_self._p_R_e]], dtype=float)
         _self.G_e = _np.array([[1.0]], dtype=float)
-        _self.Gamma = _np.array([[0.5*1.0/_self._p_k]], dtype=float)   # Assumptions 2/4 (derived)
+        _self.Gamma = _np.array([[0.5*1.0/_self._p_k]], dtype=float)   # Assumptions 2/4 (given)
         _M = _np.array([[_self._p_m]], dtype=float)
         _self._M_inv = _np.linalg.inv(_M)
         _self.m = _self._p_m

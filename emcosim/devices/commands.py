@@ -17,13 +17,20 @@ the suite's FMUs that would be written into the same folder is refused.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
+import tempfile
 from pathlib import Path
+from typing import Iterator
 
 from components.device import DESIGNS, Device
 
 from ..engine.errors import ScenarioError
+
+OPERATING_POINT_HELP = ("how the free electrical coordinates are fixed when n_e > n_m, instead of the file's "
+                        "[operating_point]: least_energy, least_input, or bias:NAME=VALUE|NAME=OTHER*RATIO,... "
+                        "(docs/plant-description.md)")
 
 
 def add_parser(sub) -> None:
@@ -38,12 +45,19 @@ def add_parser(sub) -> None:
                        help="reference of each position, e.g. sinusoid:offset=0.001,amplitude=3e-4,omega=31.4 "
                             "(repeat per position; kinds: constant, sinusoid, smooth_step)")
     check.add_argument("--horizon", type=float, default=None, help="horizon over which the reference is checked [s]")
+    check.add_argument("--q0", type=float, nargs="+", metavar="Q",
+                       help="initial positions of the scenario whose start input is reported (as plant scenario)")
+    check.add_argument("--p0", type=float, nargs="+", metavar="P", help="initial momenta (default: rest)")
+    check.add_argument("--x-e0", type=float, nargs="+", metavar="X",
+                       help="initial electrical states (default: those of the equilibrium at q0)")
+    check.add_argument("--operating-point", metavar="RULE", help=OPERATING_POINT_HELP)
     check.add_argument("--json", help="also write the report as JSON to this file")
     check.set_defaults(func=cmd_check)
 
     build = psub.add_parser("build", help="build the plant FMU and a controller FMU per design that applies")
     build.add_argument("file")
     build.add_argument("--out", required=True, help="folder for the FMUs")
+    build.add_argument("--operating-point", metavar="RULE", help=OPERATING_POINT_HELP)
     build.set_defaults(func=cmd_build)
 
     scen = psub.add_parser("scenario", help="write an SSP scenario: the plant in closed loop with one controller")
@@ -58,10 +72,15 @@ def add_parser(sub) -> None:
     scen.add_argument("--reference", action="append", default=[], metavar="KIND:NAME=VALUE,...",
                       help="reference of each position (tracking; repeat per position)")
     scen.add_argument("--q0", type=float, nargs="+", metavar="Q",
-                      help="initial positions: at rest with the equilibrium's electrical state (default: q_d or q*(0))")
+                      help="initial positions (default: q_d or q*(0))")
+    scen.add_argument("--p0", type=float, nargs="+", metavar="P", help="initial momenta (default: rest, p = 0)")
+    scen.add_argument("--x-e0", type=float, nargs="+", metavar="X",
+                      help="initial electrical states (default: those of the equilibrium at q0, x_e = 0 where the "
+                           "potential holds q0 alone)")
     scen.add_argument("--gain", action="append", default=[], metavar="NAME=VALUE",
                       help="a gain of the controller (repeatable; default: the description's)")
     scen.add_argument("--name", help="scenario name (default: <name>_<design>, lower case)")
+    scen.add_argument("--operating-point", metavar="RULE", help=OPERATING_POINT_HELP)
     scen.set_defaults(func=cmd_scenario)
     plant.set_defaults(func=lambda args: _usage(plant))
 
@@ -73,6 +92,29 @@ def _usage(parser: argparse.ArgumentParser) -> int:
 
 def _describe(exc: Exception) -> ScenarioError:
     return ScenarioError(" ".join(str(exc).split()))
+
+
+@contextlib.contextmanager
+def _description_file(path: str, operating_point: str | None) -> Iterator[str]:
+    """The description file to read: `path`, or, with a command-line operating point, a copy of it whose
+    [operating_point] table is that choice (components.description.with_operating_point), so that the FMUs
+    built from it carry the choice in their description."""
+    if operating_point is None:
+        yield path
+        return
+    from components.description import with_operating_point
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError:
+        yield path                                       # components.description.load says why
+        return
+    with tempfile.TemporaryDirectory(prefix="emcosim_operating_point_") as tmp:
+        copy = Path(tmp) / Path(path).name
+        copy.write_text(with_operating_point(text, operating_point, path), encoding="utf-8")
+        try:
+            yield str(copy)
+        except ValueError as exc:                        # name the user's file, not the copy
+            raise type(exc)(str(exc).replace(str(copy), f"{path} (--operating-point {operating_point})")) from None
 
 
 def _references(items: list[str]):
@@ -88,12 +130,16 @@ def cmd_check(args) -> int:
     if args.json:
         check_destination(Path(args.json))
     try:
-        reference = None
-        if args.reference:
-            from components import description as descriptions
-            desc = descriptions.load(args.file)
-            reference = StackedReference(reference_components(desc.q, _references(args.reference), desc.name))
-        _, report, _ = registry.load(args.file, q_d=args.q_d, reference=reference, horizon=args.horizon)
+        with _description_file(args.file, args.operating_point) as file:
+            reference = None
+            if args.reference:
+                from components import description as descriptions
+                desc = descriptions.load(file)
+                reference = StackedReference(reference_components(desc.q, _references(args.reference), desc.name))
+            desc, report, device = registry.load(file, q_d=args.q_d, reference=reference, horizon=args.horizon)
+            from .start import attach
+            attach(report, device, desc, references=_references(args.reference), q_0=args.q0, p_0=args.p0,
+                   x_e_0=args.x_e0, gains=_q_d_gains(device, args.q_d))
     except ValueError as exc:
         raise _describe(exc) from None
     print(report.text())
@@ -104,16 +150,28 @@ def cmd_check(args) -> int:
     return 0
 
 
+def _q_d_gains(device, q_d) -> dict[str, float]:
+    """The set-point as controller gains: q_d (n_m = 1) or q_d_1, q_d_2, ..."""
+    if q_d is None:
+        return {}
+    names = ["q_d"] if len(q_d) == 1 and device.n_m == 1 else [f"q_d_{i + 1}" for i in range(len(q_d))]
+    return dict(zip(names, q_d))
+
+
 def cmd_build(args) -> int:
+    try:
+        with _description_file(args.file, args.operating_point) as file:
+            return _build(file, Path(args.out))
+    except ValueError as exc:                           # a wrong description or --operating-point
+        raise _describe(exc) from None
+
+
+def _build(file: str, out: Path) -> int:
     from fmus.build import BuildError
 
     from . import registry
 
-    try:
-        desc, report, device = registry.load(args.file)
-    except ValueError as exc:
-        raise _describe(exc) from None
-    out = Path(args.out)
+    desc, report, device = registry.load(file)          # a ValueError is reported by cmd_build
     check_device_names(device, list(device.designs), out)
     for line in report.not_applicable():                # "<design>: <why>"
         print(f"not built   {device.name}_{line}")
@@ -187,13 +245,12 @@ def cmd_scenario(args) -> int:
 
     out = Path(args.out)
     try:
-        desc, _, device = registry.load(args.file)
+        with _description_file(args.file, args.operating_point) as file:
+            desc, _, device = registry.load(file)
         gains = dict(gain_values(args.gain))
-        if args.q_d is not None:
-            names = ["q_d"] if len(args.q_d) == 1 and device.n_m == 1 else [f"q_d_{i + 1}" for i in range(len(args.q_d))]
-            gains.update(zip(names, args.q_d))
+        gains.update(_q_d_gains(device, args.q_d))
         setup = Setup(args.controller, args.stop_time, args.step_size, gains=gains, references=_references(args.reference),
-                      q_0=args.q0, name=args.name)
+                      q_0=args.q0, p_0=args.p0, x_e_0=args.x_e0, name=args.name)
         fmu_dir = Path(args.fmu_dir) if args.fmu_dir else Path("build") / desc.name
         relative = str(fmu_dir) if fmu_dir.is_absolute() else os.path.relpath(fmu_dir.resolve(), out.resolve())
         files = scenario_files(device, setup, relative)

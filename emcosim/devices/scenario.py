@@ -20,6 +20,7 @@ import numpy as np
 
 from components import catalog
 from components.device import Device, VariableSpec
+from components.operating_point import switches
 from components.ph_plant import Jet
 from components.references import KINDS
 
@@ -38,8 +39,11 @@ class Setup:
     gains        gain values by FMU name (the design's defaults where absent)
     references   tracking: one dict per position, {"kind": "constant" | "sinusoid" | "smooth_step", and that
                  kind's parameters}; regulation: empty
-    q_0          initial positions (at rest, electrical state of the equilibrium there); None: q_d or q*(0)
-    eta_0        the whole initial state (q, p, x_e) instead of q_0
+    q_0          initial positions; None: q_d (regulation) or q*(0) (tracking)
+    p_0          initial momenta; None: rest (p = 0)
+    x_e_0        initial electrical state; None: x_e of the equilibrium at q_0 (the set E of Section 3; x_e = 0
+                 where the potential holds q_0 alone)
+    eta_0        the whole initial state (q, p, x_e) instead of q_0, p_0, x_e_0
     """
 
     design: str
@@ -50,6 +54,16 @@ class Setup:
     q_0: Sequence[float] | None = None
     eta_0: Sequence[float] | None = None
     name: str | None = None
+    p_0: Sequence[float] | None = None
+    x_e_0: Sequence[float] | None = None
+
+    def start_text(self) -> str:
+        """How the initial state was chosen, for the scenario's notes."""
+        if self.eta_0 is not None:
+            return " (given)"
+        p = "p given" if self.p_0 is not None else "at rest (p = 0)"
+        x = "x_e given" if self.x_e_0 is not None else "x_e of the equilibrium at q_0"
+        return f": {p}, {x}"
 
 
 def reference_components(q: Sequence[VariableSpec], references: Sequence[Mapping], owner: str) -> list:
@@ -90,29 +104,45 @@ def stacked_jet(references: Sequence, t: float) -> Jet:
 
 
 def initial_state(device: Device, setup: Setup, controller) -> np.ndarray:
-    """eta(0): given whole, or at rest at q_0 with the equilibrium's x_e (Section 3, set E); q_0 defaults to the
-    set-point (regulation) or q*(0) (tracking)."""
+    """eta(0): given whole (eta_0), or from q_0, p_0, x_e_0, each defaulting to: q_0 the set-point (regulation) or
+    q*(0) (tracking); p_0 = 0 (rest); x_e_0 the electrical state of the equilibrium at q_0 (Section 3, set E;
+    EMPlant.equilibrium, x_e = 0 where the potential holds q_0 alone)."""
     plant = controller.plant
     if setup.eta_0 is not None:
-        eta = np.asarray(setup.eta_0, dtype=float)
-        if eta.shape != (plant.n,):
-            raise ValueError(f"the initial state has {eta.size} entries; {device.name} has {plant.n} "
-                             f"({', '.join(v.name for v in device.states)})")
+        if (setup.q_0, setup.p_0, setup.x_e_0) != (None, None, None):
+            raise ValueError("give the whole initial state or q_0, p_0, x_e_0, not both")
+        eta = _vector(setup.eta_0, plant.n, "the initial state", device.name,
+                      ", ".join(v.name for v in device.states))
     else:
         if setup.q_0 is not None:
-            q_0 = np.asarray(setup.q_0, dtype=float).reshape(-1)
+            q_0 = _vector(setup.q_0, device.n_m, "q_0", device.name, ", ".join(v.name for v in device.q))
         elif controller.tracking:
             q_0 = stacked_jet(reference_components(device.q, setup.references, device.name), 0.0).q
         else:
             q_0 = plant.split(controller.target())[0]
-        if q_0.shape != (device.n_m,):
-            raise ValueError(f"q_0 has {q_0.size} entries; {device.name} has {device.n_m} position(s)")
-        try:
-            eta = plant.equilibrium(q_0)
-        except ValueError as exc:
-            raise ValueError(f"no assignable equilibrium at q_0 = {q_0.tolist()} to start from: {exc}") from None
+        p_0 = (np.zeros(device.n_m) if setup.p_0 is None
+               else _vector(setup.p_0, device.n_m, "p_0", device.name, ", ".join(v.name for v in device.p)))
+        if setup.x_e_0 is not None:
+            x_e_0 = _vector(setup.x_e_0, device.n_e, "x_e_0", device.name, ", ".join(v.name for v in device.x_e))
+        else:
+            try:
+                x_e_0 = plant.split(plant.equilibrium(q_0))[2]
+            except ValueError as exc:
+                raise ValueError(f"no assignable equilibrium at q_0 = {q_0.tolist()} to take x_e_0 from: {exc}; "
+                                 "give x_e_0") from None
+        eta = np.concatenate([q_0, p_0, x_e_0])
     plant.check_state(eta)
     return eta
+
+
+def _vector(values: Sequence[float], n: int, what: str, owner: str, names: str) -> np.ndarray:
+    """`values` as a finite n-vector (ValueError naming `what` and the expected entries otherwise)."""
+    v = np.asarray(values, dtype=float).reshape(-1)
+    if v.shape != (n,):
+        raise ValueError(f"{what} has {v.size} entries; {owner} has {n} ({names})")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{what} = {v.tolist()} must be finite")
+    return v
 
 
 def parameter_doc(unit: str | None, text: str) -> str:
@@ -172,8 +202,7 @@ def scenario_files(device: Device, setup: Setup, fmu_dir: str) -> dict[str, str]
         what = f"regulation to q_d = {[float(x) for x in controller.plant.split(controller.target())[0]]}"
     description = f"{device.name} {what} with {setup.design}"
     notes = [f"{name}: {description}.",
-             f"Initial state ({', '.join(states)}) = {[float(x) for x in eta_0]}"
-             + (" (given)" if setup.eta_0 is not None else ": at rest, with the electrical state of the equilibrium there"),
+             f"Initial state ({', '.join(states)}) = {[float(x) for x in eta_0]}" + setup.start_text(),
              f"Communication step {setup.step_size:g} s, stop time {setup.stop_time:g} s.",
              "Written by `emcosim plant scenario` from the device's description."]
     scenario = Scenario(name, Path("SystemStructure.ssd"), components, connections, 0.0, setup.stop_time,
@@ -201,11 +230,19 @@ def _design(device: Device, setup: Setup) -> tuple:
     if not design.tracking and setup.references:
         raise ValueError(f"{identifier} regulates to q_d (a gain): it takes no reference")
     references = reference_components(device.q, setup.references, identifier) if design.tracking else []
-    for t in np.linspace(0.0, setup.stop_time, 201) if references else ():
+    times = np.linspace(0.0, setup.stop_time, 201) if references else np.zeros(0)
+    branches = []
+    branch_of = getattr(controller.plant, "electrical_branch", None)      # n_e > n_m: the energized ports
+    for t in times:
         try:
-            controller.target(stacked_jet(references, float(t)))            # Definition 1: x_e* exists
+            jet = stacked_jet(references, float(t))
+            controller.target(jet)                                          # Definition 1: x_e* exists
+            branches.append(branch_of(jet) if branch_of is not None else ())
         except ValueError as exc:
             raise ValueError(f"the reference is not feasible at t = {t:g} s: {exc}") from None
+    why = switches(list(times), branches, [v.name for v in device.x_e])
+    if why:
+        raise ValueError(f"the reference is not feasible with the operating-point rule: {why}")
     return controller, gains, references
 
 

@@ -16,7 +16,6 @@ NAME.partial.csv or NAME.partial/, never a half-written NAME.csv).
 from __future__ import annotations
 
 import argparse
-import difflib
 import re
 import shutil
 import sys
@@ -30,12 +29,6 @@ FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "-
          "start_values": "--set", "max_bytes": "--ssp-max-size", "max_files": "--ssp-max-files",
          "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver",
          "solver_steps": "--solver-steps", "rtol": "--rtol", "max_runs": "--max-runs"}
-
-
-def scenario_dirs() -> list[Path]:
-    """Where bare scenario names are looked up: ./scenarios, then the project's scenarios/."""
-    dirs = [Path.cwd() / "scenarios", Path(__file__).resolve().parents[1] / "scenarios"]
-    return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
 NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius", "--rtol")
@@ -265,41 +258,14 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
-def scenario_names() -> list[str]:
-    """The bare scenario names found in scenario_dirs()."""
-    from .engine.ssd import SSD_NAME
-    return sorted({d.name for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file()})
-
-
 def _resolve(name: str, limits=None) -> Path:
-    """The .ssd of a scenario (see engine.ssd.resolve_path); a bare name that matches no scenario
-    gets the closest names suggested."""
-    from .engine.ssd import resolve_path
-    try:
-        return resolve_path(name, scenario_dirs(), limits)
-    except ScenarioError:
-        if len(Path(name).parts) == 1 and not Path(name).exists():
-            close = difflib.get_close_matches(name, scenario_names(), n=3, cutoff=0.6)
-            if close:
-                raise ScenarioError(f"{name}: no such scenario; did you mean {' or '.join(close)}? "
-                                    "(`emcosim info` lists them)") from None
-        raise
+    from .api import find_scenario
+    return find_scenario(name, limits)
 
 
 def _read(name: str, fmu_dir: str | None = None, args=None):
-    from .engine.ssd import read_scenario
-    limits = None if args is None else _limits(args)
-    return read_scenario(_resolve(name, limits), fmu_dir=fmu_dir, limits=limits)
-
-
-def default_record(scenario) -> list[str] | None:
-    """Every output connector and every input that no connection feeds (in component order): each
-    connected value once. An input fed through a linear transformation differs from its source and
-    is recorded too. None (the master's default) for a scenario without such connectors."""
-    fed = {c.end for c in scenario.connections if c.factor == 1.0 and c.offset == 0.0}
-    names = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
-             if k.kind == "output" or (k.kind == "input" and f"{c.name}.{k.name}" not in fed)]
-    return names or None
+    from .api import load_scenario
+    return load_scenario(name, fmu_dir, None if args is None else _limits(args))
 
 
 def run_options(args):
@@ -316,9 +282,7 @@ def run_options(args):
 
 
 def cmd_run(args) -> int:
-    from dataclasses import asdict
-
-    from .engine.master import simulate
+    from .api import run
     from .engine.outputs import ResultFile
     from .progress import ProgressBar
 
@@ -330,7 +294,7 @@ def cmd_run(args) -> int:
         if not sep or "." not in name:
             raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
         start_values[name.strip()] = value.strip()
-    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else default_record(scenario)
+    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else None
     output = Path(args.output or f"{scenario.name}.csv")
     if args.plot:
         check_plot(Path(args.plot), output)
@@ -341,8 +305,7 @@ def cmd_run(args) -> int:
     result = failure = None
     try:
         with sink:
-            result = simulate(scenario, start_values=start_values, record=record, progress=bar, sink=sink,
-                              **asdict(options))
+            result = run(scenario, options, start_values=start_values, record=record, progress=bar, sink=sink)
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
@@ -500,6 +463,8 @@ def cmd_info(args) -> int:
     if args.scenario:
         paths = args.scenario
     else:
+        from .api import scenario_dirs
+
         paths = sorted(str(d) for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file())
         if not paths:
             raise ScenarioError("no scenarios found (looked in ./scenarios and the project's scenarios/)")
@@ -535,7 +500,7 @@ def cmd_reproduce(args) -> int:
     from .paper.reproduce import ensure_fmus, reproduce
 
     if args.fmu_dir is None:
-        ensure_fmus()
+        ensure_fmus()                              # into emcosim.paper_fmu_dir(), where the scenarios look
     reproduce(args.out, stop_time=args.stop_time, fmu_dir=args.fmu_dir, jobs=args.jobs)
     return 0
 

@@ -11,7 +11,6 @@ Reference FMU, into DIR (fmus.build). scenario: an SSP scenario folder (emcosim.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -55,7 +54,7 @@ def add_parser(sub) -> None:
                       help="initial positions: at rest with the equilibrium's electrical state (default: q_d or q*(0))")
     scen.add_argument("--gain", action="append", default=[], metavar="NAME=VALUE",
                       help="a gain of the controller (repeatable; default: the description's)")
-    scen.add_argument("--name", help="scenario name (default: <name>_<design>, lower case)")
+    scen.add_argument("--name", help="scenario name (default: the folder's name, so that `emcosim run DIR` writes DIR.csv)")
     scen.set_defaults(func=cmd_scenario)
     plant.set_defaults(func=lambda args: _usage(plant))
 
@@ -101,83 +100,29 @@ def cmd_check(args) -> int:
 def cmd_build(args) -> int:
     from fmus.build import BuildError
 
-    from . import registry
+    from .build import build_fmus_of
 
     try:
-        desc, report, device = registry.load(args.file)
-    except ValueError as exc:
-        raise _describe(exc) from None
-    for line in report.not_applicable():                # "<design>: <why>"
-        print(f"not built   {device.name}_{line}")
-    try:
-        paths = build_fmus_of(desc, list(device.designs), Path(args.out))
+        build_fmus_of(args.file, Path(args.out), progress=lambda line: print(line, flush=True))
     except (BuildError, ValueError) as exc:
         raise _describe(exc) from None
-    for path in paths.values():
-        print(f"built       {path}")
     return 0
-
-
-def build_fmus_of(desc, designs: list[str], out: Path) -> dict[str, Path]:
-    """The plant FMU, the controller FMUs of `designs` and the Reference FMU of a description, into `out`
-    (fmus.build.build_description: the generated model module, no sympy at run time); every FMU carries the
-    description as registry.DESCRIPTION_RESOURCE, by which `certify` knows the device."""
-    import shutil
-    import tempfile
-
-    from fmus.build import build_description, build_fmus
-
-    from .registry import DESCRIPTION_RESOURCE
-
-    with tempfile.TemporaryDirectory(prefix="emcosim_plant_") as tmp:
-        copy = Path(tmp) / Path(DESCRIPTION_RESOURCE).name
-        shutil.copyfile(desc.source, copy)
-        paths = build_description(copy, out, designs)
-    paths.update(build_fmus({"Reference": None}, out))
-    return paths
 
 
 def cmd_scenario(args) -> int:
-    from . import registry
-    from .scenario import Setup, gain_values, scenario_files
+    from .build import scenario_of
+    from .scenario import gain_values
 
     out = Path(args.out)
     try:
-        desc, _, device = registry.load(args.file)
-        gains = dict(gain_values(args.gain))
-        if args.q_d is not None:
-            names = ["q_d"] if len(args.q_d) == 1 and device.n_m == 1 else [f"q_d_{i + 1}" for i in range(len(args.q_d))]
-            gains.update(zip(names, args.q_d))
-        setup = Setup(args.controller, args.stop_time, args.step_size, gains=gains, references=_references(args.reference),
-                      q_0=args.q0, name=args.name)
-        fmu_dir = Path(args.fmu_dir) if args.fmu_dir else Path("build") / desc.name
-        relative = str(fmu_dir) if fmu_dir.is_absolute() else os.path.relpath(fmu_dir.resolve(), out.resolve())
-        files = scenario_files(device, setup, relative)
+        files, fmu_dir, missing = scenario_of(args.file, out, args.controller, args.stop_time, args.step_size,
+                                              fmu_dir=args.fmu_dir, q_d=args.q_d,
+                                              references=_references(args.reference), q0=args.q0,
+                                              gains=dict(gain_values(args.gain)), name=args.name)
     except ValueError as exc:
         raise _describe(exc) from None
-    _write_folder(out, files)
     print(f"scenario    {out} ({', '.join(sorted(files))}); run it with `emcosim run {out}`")
-    missing = [n for n in (device.name, device.controller_identifier(args.controller)) if not (fmu_dir / f"{n}.fmu").is_file()]
     if missing:
-        print(f"emcosim: note: {', '.join(m + '.fmu' for m in missing)} not in {fmu_dir} yet: "
+        print(f"emcosim: note: {', '.join(missing)} not in {fmu_dir} yet: "
               f"`emcosim plant build {args.file} --out {fmu_dir}`", file=sys.stderr)
     return 0
-
-
-def _write_folder(out: Path, files: dict[str, str]) -> None:
-    """Write the scenario's files into `out` (created if missing). A folder holding anything but a
-    scenario's files is refused; no file is written through a link."""
-    from ..engine.outputs import write_file
-
-    if out.is_symlink() or (out.exists() and not out.is_dir()):
-        raise ScenarioError(f"{out}: not a folder (a link or a file); the scenario is written into a folder")
-    if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir()
-                         if not (p.suffix in (".ssd", ".ssv") and p.is_file() and not p.is_symlink()))
-        if foreign:
-            raise ScenarioError(f"{out}: holds files that are not a scenario's ({', '.join(foreign[:5])}); "
-                                "choose an empty or new folder")
-    out.mkdir(parents=True, exist_ok=True)
-    for name, text in files.items():
-        data = text.encode("utf-8")
-        write_file(out / name, lambda f, data=data: f.write(data))

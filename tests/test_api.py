@@ -1,0 +1,79 @@
+"""The public API (emcosim/api.py, re-exported by `emcosim`): its docstrings' examples run as doctests, the
+command line gives the same rows and records the same variables as the API, a run records each connected
+value once, and the DataFrame carries the FMUs' units."""
+from __future__ import annotations
+
+import doctest
+
+import numpy as np
+import pytest
+
+import emcosim
+from emcosim import api
+from emcosim.cli import main
+from emcosim.engine.master import simulate
+from emcosim.engine.results import read_csv
+
+
+@pytest.mark.parametrize("module", [api, emcosim], ids=["emcosim.api", "emcosim"])
+def test_the_docstring_examples_run(module, tmp_path, monkeypatch, fmu_dir):
+    monkeypatch.chdir(tmp_path)                    # an empty folder: names must be found from anywhere
+    finder = doctest.DocTestFinder()
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    tests = finder.find(module, module.__name__, globs={**vars(module), **api._doctest_globals(tmp_path)})
+    skipped = sum(bool(e.options.get(doctest.SKIP)) for t in tests for e in t.examples)
+    for test in tests:
+        runner.run(test)
+    failed, attempted = runner.summarize(verbose=False)
+    assert failed == 0
+    if module is api:
+        assert attempted >= 15 and skipped <= 4        # +SKIP only for an FMU build and a Dask sweep
+
+
+def test_every_public_function_has_an_example():
+    for name in emcosim.__all__:
+        obj = getattr(emcosim, name)
+        if callable(obj) and not isinstance(obj, type) and obj.__module__ in ("emcosim.api", "emcosim.engine.plan"):
+            assert ">>> " in (obj.__doc__ or "") or name in ("default_record", "units_of"), name
+
+
+def test_a_run_records_each_connected_value_once():
+    scenario = emcosim.load_scenario("maglev_regulation_prop2")
+    fed = {c.end for c in scenario.connections}
+    # independent of default_record: the outputs of the loop, none of the inputs they feed
+    expected = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors if k.kind == "output"]
+    assert fed and not fed & set(emcosim.default_record(scenario))
+    assert emcosim.default_record(scenario) == expected
+
+
+def test_the_engine_the_api_and_the_cli_record_the_same(tmp_path, fmu_dir):
+    scenario = emcosim.load_scenario("maglev_regulation_prop2")
+    engine = simulate(scenario, stop_time=0.02)                     # the engine's own default
+    result = emcosim.run("maglev_regulation_prop2", emcosim.RunOptions(stop_time=0.02))
+    out = tmp_path / "cli.csv"
+    assert main(["run", "maglev_regulation_prop2", "--stop-time", "0.02", "-o", str(out), "--no-progress"]) == 0
+    cli = read_csv(out)
+    assert engine.columns == result.columns == [n for n in cli if n != "time"]
+    assert "controller.q" not in result.columns and "plant.q" in result.columns     # once, not twice
+    np.testing.assert_array_equal(cli["time"], result.time)
+    for name in result.columns:
+        np.testing.assert_allclose(cli[name], result[name], rtol=1e-12, atol=0)   # the CSV's 17 digits
+
+
+def test_to_pandas_gives_the_rows_and_the_fmus_units(fmu_dir):
+    result = emcosim.run("mems_regulation_Dd0", emcosim.RunOptions(stop_time=1e-3))
+    df = result.to_pandas()
+    assert list(df.columns) == result.columns and df.index.name == "time"
+    np.testing.assert_array_equal(df.index.to_numpy(), result.time)
+    np.testing.assert_array_equal(df["plant.q"].to_numpy(), result["plant.q"])
+    # the units as docs/fmus.md gives them for the MEMS plant and its controller
+    units = df.attrs["units"]
+    assert {k: units[k] for k in ("time", "controller.u", "plant.q", "plant.p", "plant.x_e", "plant.H")} == {
+        "time": "s", "controller.u": "V", "plant.q": "m", "plant.p": "kg.m/s", "plant.x_e": "C", "plant.H": "J"}
+    assert units["reference.q_star"] == "m" and units["reference.q_star_dot"] == "m/s"
+
+
+def test_a_misspelt_name_gets_suggestions_from_any_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(emcosim.engine.errors.ScenarioError, match="did you mean maglev_regulation_prop2"):
+        emcosim.load_scenario("maglev_regulation_prop")

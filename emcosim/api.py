@@ -36,7 +36,7 @@ from .engine.results import Result
 from .engine.ssd import SSD_NAME, Scenario
 
 __all__ = ["RunOptions", "Result", "Scenario", "scenario_dirs", "scenario_names", "find_scenario", "load_scenario",
-           "default_record", "run", "paper_fmu_dir", "check_plant", "build_plant", "write_scenario", "write_folder",
+           "default_record", "run", "figure", "paper_fmu_dir", "check_plant", "build_plant", "write_scenario", "write_folder",
            "certify", "sweep", "units_of"]
 
 
@@ -49,7 +49,7 @@ def scenario_dirs() -> list[Path]:
     >>> any(d.name == "scenarios" for d in scenario_dirs())
     True
     """
-    from .paper.scenarios import SCENARIOS
+    from .locations import SCENARIOS
 
     dirs = [Path.cwd() / "scenarios", SCENARIOS]
     return [d for d in dict.fromkeys(dirs) if d.is_dir()]
@@ -96,7 +96,7 @@ def paper_fmu_dir() -> Path:
     >>> paper_fmu_dir().parts[-2:]
     ('build', 'fmus')
     """
-    from .paper.scenarios import fmu_dir
+    from .locations import fmu_dir
 
     return fmu_dir()
 
@@ -111,7 +111,7 @@ def load_scenario(name: str | Path, fmu_dir: str | Path | None = None, limits=No
     (['controller', 'plant'], 20.0)
     """
     from .engine.ssd import read_scenario
-    from .paper.scenarios import fmus_of
+    from .locations import fmus_of
 
     ssd = find_scenario(name, limits)
     return read_scenario(ssd, fmu_dir=fmus_of(ssd, fmu_dir), limits=limits)
@@ -161,6 +161,47 @@ def units_of(scenario: Scenario, names: Iterable[str]) -> dict[str, str]:
     units = {"time": "s"}
     units.update({n: info[n].unit if n in info else "" for n in names})
     return units
+
+
+def figure(scenario: Scenario, result: Result, start_values: Mapping[str, str | float] | None = None):
+    """The figure of a run (an engine.plotting.FigureSpec; engine.plotting.draw makes it a matplotlib figure):
+    for a scenario of this suite's plant and controller FMUs (the paper's, or a device's built by `build_plant`)
+    q against q*, the error, u, x_e and H in physical units (emcosim.paper.run_figure); for any other scenario
+    one panel per recorded variable in its unit, without importing the paper's layer or touching the device
+    catalog.
+
+    >>> r = run("maglev_regulation_prop2", RunOptions(stop_time=0.1))
+    >>> [p.ylabel.split(" [")[0] for p in figure(load_scenario("maglev_regulation_prop2"), r).panels][:3]
+    ['position q', 'error q - q*', 'input u']
+    """
+    from .engine import plotting
+
+    spec = None
+    if _of_this_suite(scenario):
+        from .paper.run_figure import run_figure
+
+        spec = run_figure(scenario, result, dict(start_values or {}))
+    return spec or plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
+
+
+def _of_this_suite(scenario: Scenario) -> bool:
+    """Whether a scenario runs FMUs of this suite: a plant of components.catalog (the paper's), or an FMU that
+    carries its plant description (built by `build_plant`)."""
+    import zipfile
+
+    from components import catalog
+    from fmus.build import DESCRIPTION_RESOURCE
+
+    for component in scenario.components:
+        if Path(component.source).stem in catalog.PLANTS:
+            return True
+        try:
+            with zipfile.ZipFile(component.source) as z:
+                if DESCRIPTION_RESOURCE in z.namelist():
+                    return True
+        except (OSError, zipfile.BadZipFile):
+            continue
+    return False
 
 
 # ---- devices from their description file ---------------------------------------------------------
@@ -244,9 +285,9 @@ def sweep(scenario: Scenario | str | Path, grid: Sequence[tuple[str, Sequence[fl
           **settings):
     """Run a scenario over a product grid of parameter values on Dask (a local cluster of worker processes, or
     `scheduler=`), returning (rows, info): one dict per run with the values, the reproduce report's metrics and
-    'status'. `options` apply to every run (RunOptions: stop time, step, tolerance, coupling); `settings` are
-    the sweep's own (samples, n_samples, seed, workers, scheduler, stream, security, on_row, max_runs: see
-    emcosim.paper.sweep.sweep).
+    'status'. `options` apply to every run (RunOptions: stop time, step, tolerance, coupling, or
+    interface_type="ModelExchange"); `settings` are the sweep's own (samples, n_samples, seed, workers,
+    scheduler, stream, security, on_row, max_runs: see emcosim.paper.sweep.sweep).
 
     >>> rows, info = sweep("maglev_tracking_D0_R0.82", [("controller.D_d", [-0.78, 0.0])],
     ...                    RunOptions(stop_time=1.0), workers=1, stream=None)        # doctest: +SKIP
@@ -255,11 +296,8 @@ def sweep(scenario: Scenario | str | Path, grid: Sequence[tuple[str, Sequence[fl
     """
     from .paper.sweep import sweep as run_sweep
 
-    options = RunOptions() if options is None else options
     points = [(n, [float(v) for v in values]) for n, values in grid]
-    return run_sweep(_scenario(scenario), points, stop_time=options.stop_time, step_size=options.step_size,
-                     tolerance=options.tolerance, coupling=options.coupling, coupling_order=options.coupling_order,
-                     **settings)
+    return run_sweep(_scenario(scenario), points, options=options, **settings)
 
 
 def _examples() -> Path:

@@ -222,6 +222,10 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--coupling-order", type=int, choices=range(0, 4), metavar="K",
                     help="highest derivative handed along a connection in every run, as `run --coupling-order` "
                          "[0..3] (explicit coupling only)")
+    sw.add_argument("--interface-type", choices=("CoSimulation", "ModelExchange"), default="CoSimulation",
+                    help="as `run --interface-type`: ModelExchange runs every point as one ODE of the FMUs' states")
+    sw.add_argument("--rtol", type=float, help="the solver's relative tolerance of ModelExchange runs, as `run --rtol`")
+    sw.add_argument("--solver", choices=("LSODA", "BDF", "Radau"), help="scipy's integrator of ModelExchange runs")
     sw.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     sw.add_argument("--no-plots", action="store_true", help="write the table only")
     sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
@@ -375,16 +379,12 @@ def plot_run(scenario, rows: Path, path: str, start_values: dict, partial: bool 
     file's metadata with the partial file's comment. Returns the file written."""
     import matplotlib.pyplot as plt
 
+    from .api import figure
     from .engine import plotting
     from .engine.outputs import write_file
     from .engine.results import Result, partial_note
-    from .paper.run_figure import run_figure
 
-    result = Result.from_csv(rows)
-    spec = run_figure(scenario, result, start_values)
-    if spec is None:
-        spec = plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
-    fig = plotting.draw(spec)
+    fig = plotting.draw(figure(scenario, Result.from_csv(rows), start_values))
     fmt = Path(path).suffix[1:].lower()
     metadata = None
     if partial:
@@ -546,7 +546,7 @@ def cmd_sweep(args) -> int:
     grid = [parse_grid(g, max_runs) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
     points(grid, samples, args.samples, args.seed, max_runs)       # its size, before anything is read
-    run_options(args)                             # checked as run's
+    options = run_options(args)                   # checked as run's
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
     scenario = _read(args.scenario, args.fmu_dir, args)
@@ -558,11 +558,9 @@ def cmd_sweep(args) -> int:
     stream = RowStream(folder.path / "sweep.csv", [n for n, _ in grid] + [n for n, _, _ in samples])
     try:
         try:
-            rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
-                               step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
-                               stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream,
-                               tolerance=args.tolerance, coupling=args.coupling, coupling_order=args.coupling_order,
-                               max_runs=max_runs)
+            rows, info = sweep(scenario, grid, samples, args.samples, args.seed, options, workers=args.workers,
+                               scheduler=args.scheduler, stream=None if args.no_progress else sys.stderr,
+                               security=tls, on_row=stream, max_runs=max_runs)
         finally:
             stream.close()
         files = write_table(rows, folder.path, info)

@@ -77,3 +77,67 @@ def test_a_misspelt_name_gets_suggestions_from_any_folder(tmp_path, monkeypatch)
     monkeypatch.chdir(tmp_path)
     with pytest.raises(emcosim.engine.errors.ScenarioError, match="did you mean maglev_regulation_prop2"):
         emcosim.load_scenario("maglev_regulation_prop")
+
+
+# ---- one options object (issue 33, item 3) --------------------------------------------------------
+
+def test_run_options_is_the_one_parameter_of_every_run():
+    """simulate, both simulation classes, the sweep's session and the sweep take one RunOptions: none of them
+    lists a setting of its own (adding a setting to RunOptions is one edit)."""
+    import dataclasses
+    import inspect
+
+    from emcosim.engine.master import Simulation
+    from emcosim.engine.model_exchange import ModelExchangeSimulation
+    from emcosim.engine.session import Session
+    from emcosim.paper import sweep as paper_sweep
+
+    fields = {f.name for f in dataclasses.fields(emcosim.RunOptions)}
+    for fn in (simulate, Simulation.run, ModelExchangeSimulation.run, Session.run, paper_sweep.run_point,
+               paper_sweep.run_all, paper_sweep.sweep, emcosim.run, emcosim.sweep):
+        parameters = inspect.signature(fn).parameters
+        assert "options" in parameters, fn.__qualname__
+        assert not fields & set(parameters), (fn.__qualname__, fields & set(parameters))
+
+
+def test_keyword_settings_are_shorthands_for_the_options(fmu_dir):
+    scenario = emcosim.load_scenario("maglev_regulation_prop2")
+    a = simulate(scenario, emcosim.RunOptions(stop_time=0.05, step_size=0.005))
+    b = simulate(scenario, stop_time=0.05, step_size=0.005)
+    c = simulate(scenario, emcosim.RunOptions(stop_time=1.0), step_size=0.005, stop_time=0.05)
+    assert len(a) == 11 and a.rows == b.rows == c.rows
+    with pytest.raises(TypeError, match="no_such_setting"):
+        simulate(scenario, no_such_setting=1)
+
+
+def test_a_sweep_point_runs_as_model_exchange(fmu_dir):
+    """The sweep's run of one point as Model Exchange: the same metrics as the co-simulation's within the
+    coupling error of a 4 us step (the two solve the same closed loop)."""
+    from emcosim.paper.sweep import close_sessions, run_point
+
+    ssd = str(emcosim.find_scenario("mems_regulation_Dd0"))
+    values = {"controller.D_d": -0.5}
+    cs = run_point(ssd, str(fmu_dir), values, emcosim.RunOptions(stop_time=1e-3, step_size=4e-6))
+    me = run_point(ssd, str(fmu_dir), values, emcosim.RunOptions(stop_time=1e-3, step_size=4e-6,
+                                                                 interface_type="ModelExchange", rtol=1e-8))
+    close_sessions()
+    assert cs["status"] == me["status"] == "ok", (cs["status"], me["status"])
+    assert me["ise"] == pytest.approx(cs["ise"], rel=1e-2) and me["max_abs_u"] == pytest.approx(cs["max_abs_u"], rel=1e-2)
+
+
+def test_the_generic_plot_leaves_the_papers_layer_alone(make, tmp_path):
+    """`run --plot` of a scenario that is not this suite's: the engine's figure, emcosim.paper never imported
+    and the device catalog unchanged (run in a fresh process, which starts without either)."""
+    import subprocess
+    import sys
+
+    from tests.helpers import loop
+
+    folder = loop(make).path.parent
+    code = ("import sys; from components import catalog; before = sorted(catalog.DEVICES); "
+            "from emcosim.cli import main; "
+            f"status = main(['run', {str(folder)!r}, '--plot', 'toy.png', '-o', 'toy.csv', '--no-progress']); "
+            "print(status, 'emcosim.paper' in sys.modules, sorted(catalog.DEVICES) == before)")
+    run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert run.stdout.split()[-3:] == ["0", "False", "True"], run.stdout + run.stderr
+    assert (tmp_path / "toy.png").stat().st_size > 0

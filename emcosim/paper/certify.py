@@ -117,7 +117,7 @@ VOLATILE = ("optimal rate", "no constant metric is faster", "because", "Omega", 
 
 
 def scenario_names(root: Path | None = None) -> list[str]:
-    from .scenarios import SCENARIOS
+    from ..locations import SCENARIOS
 
     root = SCENARIOS if root is None else root
     return sorted(p.name for p in root.iterdir() if (p / "SystemStructure.ssd").is_file())
@@ -134,7 +134,7 @@ def section(reports: dict[str, str]) -> str:
 
 def certify_all(names: list[str] | None = None) -> dict[str, str]:
     names = scenario_names() if names is None else names
-    from .scenarios import SCENARIOS
+    from ..locations import SCENARIOS
 
     return {n: certify_scenario(SCENARIOS / n).report() for n in names}
 

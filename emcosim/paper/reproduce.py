@@ -24,10 +24,10 @@ from ..engine.output_folder import OutputFolder
 from ..engine.outputs import write_csv
 from ..engine.results import Result
 from ..engine.ssd import read_scenario
+from ..locations import SCENARIOS, fmus_of
 from ..progress import ProgressBar
 from . import report
 from .certify import design_from_scenario
-from .scenarios import SCENARIOS, fmus_of
 
 PAPER_CASES = {                       # role in the claims report -> scenario name
     "mems_reg_0": "mems_regulation_Dd0",

@@ -25,36 +25,16 @@ from components.references import Sinusoid
 from ..devices.scenario import parameter_doc, reference_parameters
 from ..engine.ssd import PARAMETER_SET, Component, Connection, Connector, Parameter, Scenario
 from ..engine.ssd_writer import parameter_set_xml, system_structure_xml
+from ..locations import INSTALLED, SCENARIOS
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGED = Path(__file__).resolve().parents[1] / "scenarios"   # emcosim/scenarios/: the wheel's package data
-INSTALLED = PACKAGED.is_dir()                      # a wheel's install (else a checkout, plain or editable)
-SCENARIOS = PACKAGED if INSTALLED else ROOT / "scenarios"      # the paper's scenarios, found from any folder
 FMU_DIR = "../../build/fmus"                       # relative to scenarios/<name>/
-
-
-def fmu_dir() -> Path:
-    """Where the paper's scenarios take their FMUs from, and where `emcosim reproduce` builds them
-    (fmus.build.default_dest): a checkout's build/fmus (where the .ssd files point), else the working
-    folder's build/fmus, writable for the user (never site-packages)."""
-    from fmus.build import default_dest
-
-    return default_dest()
-
-
-def fmus_of(ssd: Path, given: str | Path | None) -> str | Path | None:
-    """The FMU folder to read the scenario `ssd` with: `given` (--fmu-dir) if any; for one of the paper's
-    scenarios `fmu_dir()`; else None (the .ssd's own paths)."""
-    if given is not None:
-        return given
-    if Path(ssd).resolve().is_relative_to(SCENARIOS.resolve()):
-        return fmu_dir()
-    return None
 
 
 def default_out() -> Path:
     """Where `python -m emcosim.paper.scenarios` writes: the checkout's scenarios/, else ./scenarios."""
     return Path.cwd() / "scenarios" if INSTALLED else SCENARIOS
+
 
 REFERENCE_OUT = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
 STATE = ["q", "p", "x_e"]

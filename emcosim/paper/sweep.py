@@ -48,6 +48,7 @@ from typing import Iterator, TextIO
 import numpy as np
 
 from ..engine.errors import LimitError, ScenarioError
+from ..engine.options import RunOptions, options_of
 from ..engine.ssd import Scenario, finite_number, read_scenario, with_values
 from .sweep_output import columns, csv_cells
 
@@ -175,16 +176,17 @@ _sessions: dict = {}            # (thread id, .ssd, fmu_dir) -> (scenario, Sessi
 _lock = threading.Lock()
 
 
-def _session(ssd: str, fmu_dir: str | None):
-    """This thread's (scenario, Session): the FMUs loaded once, reused for every later run."""
+def _session(ssd: str, fmu_dir: str | None, model_exchange: bool = False):
+    """This thread's (scenario, Session): the FMUs loaded once (for Co-Simulation, or Model Exchange), reused
+    for every later run."""
     from ..engine.session import Session
 
-    key = (threading.get_ident(), ssd, fmu_dir)
+    key = (threading.get_ident(), ssd, fmu_dir, model_exchange)
     with _lock:
         found = _sessions.get(key)
     if found is None:
         scenario = read_scenario(ssd, fmu_dir=fmu_dir)
-        found = (scenario, Session(scenario))
+        found = (scenario, Session(scenario, model_exchange=model_exchange))
         with _lock:
             if not _sessions:
                 atexit.register(close_sessions)
@@ -219,19 +221,18 @@ def metrics_of(scenario: Scenario, values: dict[str, float], result) -> dict[str
     return asdict(report.run_metrics(run))
 
 
-def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], stop_time: float | None = None,
-              step_size: float | None = None, tolerance: float | None = None, coupling: str | None = None,
-              coupling_order: int | None = None) -> dict:
+def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], options: RunOptions | None = None,
+              **settings) -> dict:
     """Run the scenario once with `values` and return its table row: the values, the metrics and
-    'status' ('ok' or the one-line error). Never raises for a failing run. `tolerance`: error-controlled
-    communication steps (as `emcosim run --tolerance`) instead of the fixed step, which the scenario
-    chose for its own gains and which other gains may not bear. `coupling` ('explicit' or 'implicit',
-    default the scenario's) and `coupling_order`: as `emcosim run --coupling` and `--coupling-order`."""
+    'status' ('ok' or the one-line error). Never raises for a failing run. `options` (RunOptions; `settings`:
+    shorthands for its fields) as for `emcosim run`: e.g. a `tolerance` for error-controlled communication steps
+    instead of the fixed step, which the scenario chose for its own gains and which other gains may not bear;
+    `coupling`, `coupling_order`; interface_type "ModelExchange" runs the FMUs as one ODE."""
     row: dict = dict(values)
     try:
-        scenario, session = _session(ssd, fmu_dir)
-        result = session.run({k: float(v) for k, v in values.items()}, stop_time=stop_time, step_size=step_size,
-                             tolerance=tolerance, coupling_order=coupling_order, coupling=coupling)
+        options = options_of(options, **settings)
+        scenario, session = _session(ssd, fmu_dir, options.model_exchange)
+        result = session.run({k: float(v) for k, v in values.items()}, options)
         row.update(metrics_of(scenario, values, result))
         row["status"] = "ok"
     except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash
@@ -362,22 +363,20 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
-            stop_time: float | None = None, step_size: float | None = None,
-            stream: TextIO | None = sys.stderr, on_row=None, tolerance: float | None = None,
-            coupling: str | None = None, coupling_order: int | None = None,
-            in_flight: int | None = None) -> list[dict]:
+def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]], options: RunOptions | None = None,
+            stream: TextIO | None = sys.stderr, on_row=None, in_flight: int | None = None, **settings) -> list[dict]:
     """Run every point on the cluster and return the rows in the order of `runs`. At most `in_flight`
     runs are submitted at a time (default IN_FLIGHT_PER_THREAD per worker thread, counted again every
     second so that workers joining a running cluster get work), the next ones as each finishes: the
     client and scheduler hold a few tasks whatever the grid. A progress bar of the runs
     done (emcosim.progress, on a terminal only) goes to `stream`; `on_row(i, row)` is called as each
-    run finishes. An interruption (KeyboardInterrupt) cancels the runs in flight. The other arguments:
-    those of `run_point`."""
+    run finishes. An interruption (KeyboardInterrupt) cancels the runs in flight. `options`, `settings`: those
+    of `run_point`, for every run."""
     from dask.distributed import as_completed
 
     from ..progress import Counter
 
+    options = options_of(options, **settings)
     window = _Window(client, in_flight)
     todo = iter(enumerate(runs))
     pending: dict = {}                                 # future key -> (run number, future)
@@ -385,8 +384,7 @@ def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
 
     def submit(count: int) -> None:
         for i, values in itertools.islice(todo, count):
-            future = client.submit(run_point, ssd, fmu_dir, values, stop_time, step_size, tolerance, coupling,
-                                   coupling_order, pure=False)
+            future = client.submit(run_point, ssd, fmu_dir, values, options, pure=False)
             pending[future.key] = (i, future)
             done.add(future)
 
@@ -449,25 +447,29 @@ def _cancel(client, futures: list) -> None:
 
 def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
           samples: list[tuple[str, float, float]] = (), n_samples: int = 0, seed: int = 0,
-          stop_time: float | None = None, step_size: float | None = None, workers: int | None = None,
+          options: RunOptions | None = None, workers: int | None = None,
           scheduler: str | None = None, stream: TextIO | None = sys.stderr, security=None,
-          on_row=None, tolerance: float | None = None, coupling: str | None = None,
-          coupling_order: int | None = None, max_runs: int = MAX_RUNS) -> tuple[list[dict], dict]:
+          on_row=None, max_runs: int = MAX_RUNS, **settings) -> tuple[list[dict], dict]:
     """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
-    the wall time and the throughput. `on_row(i, row)`: see `run_all`; `coupling`, `coupling_order`:
-    see `run_point`; `max_runs`: see MAX_RUNS."""
+    the wall time and the throughput. `options` (RunOptions; `settings`: shorthands for its fields): the
+    settings of every run, see `run_point` (Co-Simulation or Model Exchange); `on_row(i, row)`: see `run_all`;
+    `max_runs`: see MAX_RUNS. Progress lines go to `stream` while the cluster starts."""
+    options = options_of(options, **settings)
     runs = points(grid, samples, n_samples, seed, max_runs)
     names = list(runs[0])
-    options = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
-    units = check_parameters(scenario, names, runs[0], options)
+    flags = {**{n: "--grid" for n, _ in grid}, **{n: "--sample" for n, _, _ in samples}}
+    units = check_parameters(scenario, names, runs[0], flags)
     fmu_dir = _common_fmu_dir(scenario)
     tic = time.perf_counter()
+    if stream is not None:
+        print(f"sweep: {len(runs)} runs; starting {scheduler or 'a local Dask cluster'} ...", file=stream, flush=True)
     with dask_client(workers, scheduler, security) as client:
         started = time.perf_counter()
+        if stream is not None:
+            print(f"sweep: {len(client.nthreads())} workers ready after {started - tic:.1f} s", file=stream, flush=True)
         # an interruption leaves the workers' FMUs alone: a cancelled run may still be stepping them (a local
         # cluster's workers end with it; a remote worker keeps its session for the next sweep, or frees it at exit)
-        rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, stop_time, step_size, stream, on_row,
-                       tolerance, coupling, coupling_order)
+        rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, options, stream, on_row)
         end = time.perf_counter()
         n_workers = len(client.nthreads())
         close_on_workers(client)
@@ -476,8 +478,10 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
             "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",
             "wall_time_s": closed - tic, "run_time_s": end - started,
             "runs_per_s": len(rows) / (end - started) if end > started else float("nan"),
-            "stop_time": stop_time, "step_size": step_size, "tolerance": tolerance,
-            "coupling": coupling or scenario.coupling or "explicit", "coupling_order": coupling_order, "seed": seed,
+            "stop_time": options.stop_time, "step_size": options.step_size, "tolerance": options.tolerance,
+            "interface_type": options.interface_type,
+            "coupling": None if options.model_exchange else options.coupling or scenario.coupling or "explicit",
+            "coupling_order": options.coupling_order, "seed": seed,
             "grid": {n: v for n, v in grid}, "samples": {n: [lo, hi] for n, lo, hi in samples},
             "n_samples": n_samples, "units": units}
     return rows, info

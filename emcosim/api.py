@@ -282,22 +282,27 @@ def certify(scenario: str | Path, radius: float = 0.1, include_start: bool = Fal
 
 
 def sweep(scenario: Scenario | str | Path, grid: Sequence[tuple[str, Sequence[float]]], options: RunOptions | None = None,
-          **settings):
-    """Run a scenario over a product grid of parameter values on Dask (a local cluster of worker processes, or
-    `scheduler=`), returning (rows, info): one dict per run with the values, the reproduce report's metrics and
+          metrics=None, **settings):
+    """Run a scenario over a product grid of parameter values on Dask (emcosim.sweeps: a local cluster of worker
+    processes, or `scheduler=`), returning (rows, info): one dict per run with the values, its metrics and
     'status'. `options` apply to every run (RunOptions: stop time, step, tolerance, coupling, or
-    interface_type="ModelExchange"); `settings` are the sweep's own (samples, n_samples, seed, workers,
-    scheduler, stream, security, on_row, max_runs: see emcosim.paper.sweep.sweep).
+    interface_type="ModelExchange"). `metrics(scenario, values, result)` gives a row's numbers: by default the
+    paper's report metrics for this suite's FMUs (settling time, overshoot, ISE, ...), else the last value of
+    every recorded variable (emcosim.sweeps.final_values). `settings` are the sweep's own (samples, n_samples,
+    seed, workers, scheduler, stream, security, on_row, max_runs: see emcosim.sweeps.sweep).
 
     >>> rows, info = sweep("maglev_tracking_D0_R0.82", [("controller.D_d", [-0.78, 0.0])],
     ...                    RunOptions(stop_time=1.0), workers=1, stream=None)        # doctest: +SKIP
     >>> [r["status"] for r in rows]                                                 # doctest: +SKIP
     ['ok', 'ok']
     """
-    from .paper.sweep import sweep as run_sweep
+    from . import sweeps
 
+    scenario = _scenario(scenario)
+    if metrics is None and _of_this_suite(scenario):
+        from .paper.sweep import metrics_of as metrics
     points = [(n, [float(v) for v in values]) for n, values in grid]
-    return run_sweep(_scenario(scenario), points, options=options, **settings)
+    return sweeps.sweep(scenario, points, options=options, metrics=metrics, **settings)
 
 
 def _examples() -> Path:

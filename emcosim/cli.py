@@ -203,7 +203,7 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--samples", type=int, default=0, help="random draws per grid point (same draws for every point)")
     sw.add_argument("--seed", type=int, default=0, help="seed of the random draws (default 0)")
     sw.add_argument("--max-runs", type=int, default=None, metavar="N",
-                    help="run a sweep of up to N runs (default: refused above 100000, emcosim.paper.sweep.MAX_RUNS)")
+                    help="run a sweep of up to N runs (default: refused above 100000, emcosim.sweeps.MAX_RUNS)")
     sw.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
     sw.add_argument("--scheduler", metavar="tls://HOST:PORT", help="use this running dask scheduler instead of a local cluster "
                                                                   "(the local cluster uses TLS with temporary credentials)")

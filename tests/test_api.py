@@ -93,8 +93,10 @@ def test_run_options_is_the_one_parameter_of_every_run():
     from emcosim.paper import sweep as paper_sweep
 
     fields = {f.name for f in dataclasses.fields(emcosim.RunOptions)}
-    for fn in (simulate, Simulation.run, ModelExchangeSimulation.run, Session.run, paper_sweep.run_point,
-               paper_sweep.run_all, paper_sweep.sweep, emcosim.run, emcosim.sweep):
+    from emcosim import sweeps
+
+    for fn in (simulate, Simulation.run, ModelExchangeSimulation.run, Session.run, sweeps.run_point, sweeps.run_all,
+               sweeps.sweep, paper_sweep.run_point, paper_sweep.run_all, paper_sweep.sweep, emcosim.run, emcosim.sweep):
         parameters = inspect.signature(fn).parameters
         assert "options" in parameters, fn.__qualname__
         assert not fields & set(parameters), (fn.__qualname__, fields & set(parameters))
@@ -141,3 +143,19 @@ def test_the_generic_plot_leaves_the_papers_layer_alone(make, tmp_path):
     run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert run.stdout.split()[-3:] == ["0", "False", "True"], run.stdout + run.stderr
     assert (tmp_path / "toy.png").stat().st_size > 0
+
+
+def test_the_sweep_engine_runs_any_scenario(make):
+    """emcosim.sweeps (the Dask engine, out of the paper's layer): a point of a toy loop, which has none of the
+    paper's metrics, gives the last value of each recorded variable, as an independent run does."""
+    from emcosim import sweeps
+    from tests.helpers import loop
+
+    scenario = loop(make)
+    ssd = str(scenario.path)
+    row = sweeps.run_point(ssd, None, {"ctrl.k1": -2.0}, emcosim.RunOptions(stop_time=0.5))
+    sweeps.close_sessions()
+    alone = simulate(scenario, stop_time=0.5, start_values={"ctrl.k1": -2.0})
+    assert row["status"] == "ok" and row["ctrl.k1"] == -2.0
+    assert row["plant.x"] == alone["plant.x"][-1]
+    assert row["plant.x"] == pytest.approx(np.exp(-2.0 * 0.5), rel=1e-2)          # x' = k1 x, x(0) = 1

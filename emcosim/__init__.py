@@ -18,6 +18,7 @@ from .api import (  # noqa: E402 - after __version__, which the build reads
     certify,
     check_plant,
     default_record,
+    figure,
     find_scenario,
     load_scenario,
     paper_fmu_dir,
@@ -30,5 +31,5 @@ from .api import (  # noqa: E402 - after __version__, which the build reads
 )
 
 __all__ = ["__version__", "Result", "RunOptions", "Scenario", "build_plant", "certify", "check_plant",
-           "default_record", "find_scenario", "load_scenario", "paper_fmu_dir", "run", "scenario_dirs",
+           "default_record", "figure", "find_scenario", "load_scenario", "paper_fmu_dir", "run", "scenario_dirs",
            "scenario_names", "sweep", "units_of", "write_scenario"]

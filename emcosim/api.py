@@ -267,10 +267,10 @@ def write_folder(out: str | Path, files: Mapping[str, str]) -> None:
 
 # ---- the paper's analyses on any scenario ---------------------------------------------------------
 
-def certify(scenario: str | Path, radius: float = 0.1, include_start: bool = False):
+def certify(scenario: str | Path, radius: float = 0.1, include_start: bool = False, limits=None):
     """The paper's conditions and a certified contraction rate of a scenario's design over a tube of relative
-    half-width `radius` around its reference (components.certificates.Certificate: `.report()`, `.to_json()`).
-    ValueError for a design the paper's conditions refuse.
+    half-width `radius` around its reference (components.certificates.Certificate: `.report()`, `.to_json()`);
+    `limits` those of an .ssp archive (see `find_scenario`). ValueError for a design the paper's conditions refuse.
 
     >>> print(certify("mems_regulation_Dd-1").report())                    # doctest: +ELLIPSIS
     Certificate for MEMS_Theorem2 (Theorem 2) in scenario mems_regulation_Dd-1
@@ -278,7 +278,7 @@ def certify(scenario: str | Path, radius: float = 0.1, include_start: bool = Fal
     """
     from .paper.certify import certify_scenario
 
-    return certify_scenario(find_scenario(scenario), radius=radius, include_start=include_start)
+    return certify_scenario(find_scenario(scenario, limits), radius=radius, include_start=include_start)
 
 
 def sweep(scenario: Scenario | str | Path, grid: Sequence[tuple[str, Sequence[float]]], options: RunOptions | None = None,

@@ -516,14 +516,14 @@ def _radius(text: str) -> float:
 
 
 def cmd_certify(args) -> int:
+    from .api import certify
     from .engine.outputs import check_destination, write_file
-    from .paper.certify import certify_scenario
 
     if args.json:
         check_destination(Path(args.json))        # before the certificate is computed: no link, a writable place
     path = _resolve(args.scenario, _limits(args))
     try:
-        cert = certify_scenario(path, radius=args.radius, include_start=args.include_start)
+        cert = certify(path, radius=args.radius, include_start=args.include_start)
     except ValueError as exc:                       # an invalid design: a parameter the paper's conditions refuse
         raise ScenarioError(f"{path}: {exc}") from None
     print(cert.report())

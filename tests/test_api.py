@@ -159,3 +159,30 @@ def test_the_sweep_engine_runs_any_scenario(make):
     assert row["status"] == "ok" and row["ctrl.k1"] == -2.0
     assert row["plant.x"] == alone["plant.x"][-1]
     assert row["plant.x"] == pytest.approx(np.exp(-2.0 * 0.5), rel=1e-2)          # x' = k1 x, x(0) = 1
+
+
+@pytest.mark.slow                        # an FMU build of the solenoid: about 20 s
+def test_a_description_builds_only_the_designs_that_apply(tmp_path):
+    """fmus.build.build_description (also through emcosim.build_plant): the solenoid's Assumptions 2 and 4 fail
+    (emcosim plant check), so no Proposition2 / Theorem3 controller is built; and every FMU carries the
+    description where the registry finds it, so certify knows the device."""
+    from components import catalog
+    from emcosim.devices import registry
+    from fmus.build import build_description
+
+    toml = api._examples() / "solenoid" / "solenoid.toml"
+    assert sorted(emcosim.check_plant(toml).designs) == ["Proposition1", "Theorem2"]
+    paths = build_description(toml, tmp_path / "direct")
+    assert sorted(paths) == ["Solenoid", "Solenoid_Proposition1", "Solenoid_Theorem2"]
+    tables = (catalog.DEVICES, catalog.PLANTS, catalog.GAINS, catalog.CONTROLLER_PLANT, catalog.TRACKING)
+    saved = [dict(t) for t in tables]
+    for t in tables:
+        for key in [k for k in t if k.startswith("Solenoid")]:
+            del t[key]
+    try:
+        device = registry.register_fmu(paths["Solenoid_Proposition1"])
+        assert device is not None and device.name == "Solenoid" and "Solenoid_Proposition1" in catalog.GAINS
+    finally:
+        for t, old in zip(tables, saved):
+            t.clear()
+            t.update(old)

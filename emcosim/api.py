@@ -11,9 +11,10 @@ Plain functions in the style of FMPy and python-control: a scenario by name or p
 with one options object (`run`, `RunOptions`), its rows as arrays (`result["plant.q"]`) or as a pandas
 DataFrame with the units in `df.attrs["units"]` (`result.to_pandas()`); from a plant description file its
 check (`check_plant`), its FMUs, only the designs that apply (`build_plant`), a closed-loop scenario
-(`write_scenario`); the paper's conditions and a certified contraction rate (`certify`); a parameter sweep
-(`sweep`). The command line (`emcosim ...`) is a thin layer over these: it parses flags, calls them and prints,
-so the two give the same results and record the same variables.
+(`write_scenario`); a run's figure (`figure`); the paper's conditions and a certified contraction rate
+(`certify`); a parameter sweep (`sweep`, on emcosim.sweeps). The command line (`emcosim ...`) is a thin layer
+over these: it parses flags, calls them and prints, so the two give the same results and record the same
+variables.
 
 Where things are found: a bare scenario name is looked up in ./scenarios, then among the paper's scenarios
 (package data of the installed wheel, or the checkout's scenarios/); the paper's scenarios take their FMUs

@@ -565,6 +565,8 @@ def cmd_sweep(args) -> int:
             stream.close()
         files = write_table(rows, folder.path, info)
         if not args.no_plots:
+            if not args.no_progress:
+                print("sweep: drawing the plots ...", file=sys.stderr, flush=True)
             horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
             files += plot(rows, dict(grid), info["units"], folder.path, title=f"{scenario.name}, horizon {horizon:g} s",
                           horizon=horizon)

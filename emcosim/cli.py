@@ -484,7 +484,7 @@ def cmd_info(args) -> int:
     print("FMUs:")
     for source in fmus:
         if not source.is_file():
-            print(f"  {source}: not built (run build.py)")
+            print(f"  {source}: not built (`emcosim reproduce` or `python -m fmus.build` builds the paper's FMUs)")
             continue
         md = read_model_description(str(source), validate=False)
         print(f"  {source.name}: {md.modelName}, FMI {md.fmiVersion}" + (f" - {md.description}" if md.description else ""))

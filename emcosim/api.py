@@ -249,8 +249,8 @@ def write_scenario(description: str | Path, out: str | Path, controller: str, st
 
     >>> ssd = write_scenario(EXAMPLES / "solenoid" / "solenoid.toml", tmp / "sc", "Proposition1",
     ...                      stop_time=0.1, step_size=1e-4, q0=[0.0007])
-    >>> sorted(p.name for p in ssd.parent.iterdir())
-    ['SystemStructure.ssd', 'controller.ssv', 'plant.ssv']
+    >>> sorted(p.name for p in ssd.parent.iterdir())          # .emcosim: the list of what emcosim wrote
+    ['.emcosim', 'SystemStructure.ssd', 'controller.ssv', 'plant.ssv']
     """
     from .devices.build import scenario_of
 

@@ -139,8 +139,8 @@ def _parser() -> argparse.ArgumentParser:
                           "instantiated for Model Exchange and their states are integrated as one ODE by scipy "
                           "(--solver): one solve at --rtol (default 1e-6), or the solves that keep the global error "
                           "within --tolerance; rows every --step-size")
-    run.add_argument("--rtol", type=float, help="the solver's relative tolerance of a ModelExchange run [1] "
-                                                "(absolute: rtol times each state's nominal value)")
+    run.add_argument("--rtol", type=float, help="the solver's relative tolerance of a ModelExchange run [1], "
+                                                "1e-13 or more (absolute: rtol times each state's nominal value)")
     run.add_argument("--solver", choices=("LSODA", "BDF", "Radau"),
                      help="scipy's integrator of a ModelExchange run (default LSODA)")
     run.add_argument("--solver-steps", action="store_true",
@@ -148,7 +148,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
-                     help="confirm a run of more than 1e8 communication steps (refused otherwise)")
+                     help="confirm a run of more than 1e8 communication steps (refused otherwise; a ModelExchange "
+                          "run: rows of its grid, and steps of each solve)")
     run.set_defaults(func=cmd_run)
 
     export = sub.add_parser("export", help="export a scenario as a closed-loop container FMU", parents=[ssp])

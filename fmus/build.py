@@ -137,7 +137,8 @@ def compile_loader(work: Path) -> Path:
     command = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
                "-Wno-format-truncation", "-Werror", f'-DLOADER_SONAME="{LOADER_SONAME}"', f"-Wl,-soname,{LOADER_SONAME}",
                "-I", ".", "-I", include, LOADER.name, "-o", "loader.so", "-ldl"]
-    run = subprocess.run(command, cwd=work, capture_output=True, text=True)
+    # gcc's own temporary files go into `work` too (a killed build leaves nothing outside its folder)
+    run = subprocess.run(command, cwd=work, capture_output=True, text=True, env={**os.environ, "TMPDIR": str(work)})
     if run.returncode != 0:
         raise BuildError(f"build.py: compiling {LOADER} failed:\n{' '.join(command)}\n{run.stderr}")
     undefined = subprocess.run(["nm", "-D", "--undefined-only", "loader.so"], cwd=work, capture_output=True, text=True)
@@ -294,10 +295,19 @@ def _model_description(alias: str, module: str | None, identifier: str, resource
 
 
 def _write_fmu(target: Path, files: dict[str, bytes]) -> None:
-    """A zip archive with sorted entries, fixed timestamps and permissions (reproducible)."""
-    tmp = target.with_suffix(".fmu.tmp")
+    """A zip archive with sorted entries, fixed timestamps and permissions (reproducible), written into a new
+    file beside `target` (created by this call: O_EXCL, no link followed) and renamed onto it."""
+    for n in range(100):                         # a killed build with our pid may have left one
+        tmp = target.with_name(f"{target.name}.tmp-{os.getpid()}" + (f"-{n}" if n else ""))
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+            break
+        except FileExistsError:
+            continue
+    else:
+        raise FileExistsError(f"too many {target.name}.tmp-{os.getpid()} files beside {target}")
     try:
-        with zipfile.ZipFile(tmp, "w") as zout:
+        with os.fdopen(fd, "wb") as f, zipfile.ZipFile(f, "w") as zout:
             for name in sorted(files):
                 info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
                 info.compress_type = zipfile.ZIP_DEFLATED
@@ -317,19 +327,22 @@ def repack(src: Path, dest: Path) -> None:
 
 
 def build_fmus(models: dict[str, Path | None], dest: Path | str, build_fingerprint: str | None = None,
-               extra_modules: Sequence[Path] = (), resource_files: Sequence[Path] = ()) -> dict[str, Path]:
+               extra_modules: Sequence[Path] = (), resource_files: Sequence[Path] = (),
+               temp_root: Path | None = None) -> dict[str, Path]:
     """Build one FMU per entry of `models` into `dest`, all with one bundle: model identifier -> None for
     a row of fmus/models.py, or the Python module that defines the slave class of that name (an EMSlave,
     `from fmus.slave import EMSlave`, like the tests' toy FMUs). `extra_modules`: more modules of the bundle
     (beside the model modules, imported by them: a device module); `resource_files`: files copied into every
-    FMU's resources/ under their names (a plant description). Returns model identifier -> FMU path."""
+    FMU's resources/ under their names (a plant description); `temp_root`: the folder the build's temporary
+    folders are made in (default: the system's; `emcosim plant build` gives a marked one, engine/tempdirs.py).
+    Returns model identifier -> FMU path."""
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     build_fingerprint = build_fingerprint or fingerprint(models, [*extra_modules, *resource_files])
     record = python_record()
     package = package_name(build_fingerprint)
     paths = {}
-    with tempfile.TemporaryDirectory(prefix="emcosim_build_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="emcosim_build_", dir=temp_root) as tmp:
         work = Path(tmp)
         loader = compile_loader(work).read_bytes()
         resources = _bundle(work, package, build_fingerprint, models, extra_modules)
@@ -380,7 +393,7 @@ from fmus.models import device_slave_classes
 
 from . import {stem} as _device_module
 
-globals().update(device_slave_classes(_device_module, {designs!r}, __name__))
+globals().update(device_slave_classes(_device_module, {designs!r}, __name__, model={model!r}))
 '''
 
 
@@ -398,7 +411,8 @@ def load_device_module(path: Path):
 
 
 def build_device(device_module: Path | str, device_name: str | None, designs: Sequence[str] | None,
-                 dest: Path | str, description: Path | str | None = None) -> dict[str, Path]:
+                 dest: Path | str, description: Path | str | None = None,
+                 temp_root: Path | None = None) -> dict[str, Path]:
     """Build the FMUs of a device into `dest`: the plant `<name>.fmu` and one `<name>_<Design>.fmu` per design.
 
     device_module  Python source that defines DEVICE (a components.device.Device, or a function returning one)
@@ -408,9 +422,12 @@ def build_device(device_module: Path | str, device_name: str | None, designs: Se
     device_name    the name DEVICE must have (the FMUs' identifier stem), or None for any
     designs        the designs to build (each must be one of the device's), or None for all of them
     description    the plant description file, copied into every FMU's resources/ (or None)
+    temp_root      the folder the build's temporary folders are made in (None: the system's)
 
     Each FMU's bundle carries the device module and a generated module that binds the slave classes
-    (PlantSlave, ControllerSlave with `device`); no sympy is needed at run time. ValueError for a module
+    (PlantSlave, ControllerSlave with `device`); no sympy is needed at run time. The plant and the controllers
+    declare one device identity (fmus.model_description.DeviceIdentity): the device's name and the sha256 of
+    the description file (without one: of the device module). ValueError for a module
     without DEVICE, a name that is not [A-Za-z][A-Za-z0-9]* or not `device_name`, an unknown design.
     Returns model identifier -> FMU path."""
     from .models import device_slave_classes, module_device
@@ -425,20 +442,24 @@ def build_device(device_module: Path | str, device_name: str | None, designs: Se
     chosen = list(device.designs) if designs is None else list(designs)
     classes = device_slave_classes(module, chosen)             # checks designs and the initial state at once
     extras = [Path(description).resolve()] if description is not None else []
-    with tempfile.TemporaryDirectory(prefix="emcosim_device_") as tmp:
+    model = hashlib.sha256((extras[0] if extras else source).read_bytes()).hexdigest()
+    with tempfile.TemporaryDirectory(prefix="emcosim_device_", dir=temp_root) as tmp:
         binding = Path(tmp) / f"emcosim_device_{device.name}.py"
         binding.write_text(BINDING.format(name=device.name, source=source.name, stem=source.stem, designs=chosen,
+                                          model=model,
                                           controllers=", ".join(c for c in classes if c != device.name) or "none"))
         return build_fmus({identifier: binding for identifier in classes}, dest,
-                          extra_modules=[source], resource_files=extras)
+                          extra_modules=[source], resource_files=extras, temp_root=temp_root)
 
 
-def build_description(description: Path | str, dest: Path | str, designs: Sequence[str] | None = None) -> dict[str, Path]:
+def build_description(description: Path | str, dest: Path | str, designs: Sequence[str] | None = None,
+                      temp_root: Path | None = None) -> dict[str, Path]:
     """The FMUs of a plant description file (TOML, issue 25): components.codegen writes its model module
     (`<stem>_model.py`, in a temporary folder), then `build_device` builds the plant and a
     controller per design of `designs` (None: the designs whose Assumptions hold, components.plant_check),
     with the description file in resources/ as DESCRIPTION_RESOURCE (where emcosim.devices.registry finds the
-    device of an FMU). A DescriptionError (components.description) names a wrong entry; nothing is built."""
+    device of an FMU; temp_root: as build_device's). A DescriptionError (components.description) names a wrong
+    entry; nothing is built."""
     from components import codegen, plant_check  # sympy: imported only when a description is built
     from components.description import load
 
@@ -446,12 +467,12 @@ def build_description(description: Path | str, dest: Path | str, designs: Sequen
     desc = load(description)
     if designs is None:
         designs = plant_check.check(desc).designs
-    with tempfile.TemporaryDirectory(prefix="emcosim_description_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="emcosim_description_", dir=temp_root) as tmp:
         module = Path(tmp) / f"{description.stem.lower()}_model.py"
         module.write_text(codegen.module_source(desc, description.name))
         resource = Path(tmp) / Path(DESCRIPTION_RESOURCE).name
         shutil.copyfile(description, resource)
-        return build_device(module, desc.name, designs, dest, description=resource)
+        return build_device(module, desc.name, designs, dest, description=resource, temp_root=temp_root)
 
 
 def up_to_date(dest: Path | str | None = None, current: str | None = None) -> bool:

@@ -28,6 +28,16 @@
  *  4. Keeps a registry of its live instances and of the FMU states they gave out: a call with a NULL,
  *     unknown or freed instance (a second fmi2FreeInstance) or state is refused, not followed.
  *  5. Logs through the host's logger: warnings and errors always, other messages with loggingOn.
+ *  6. Checks every argument of an FMI call before it reads an element of an array (issue 31, item 2): the
+ *     instance, every pointer (NULL with a count > 0), and every count against the FMU's own numbers, which
+ *     the slave tells at fmi2Instantiate (fmi2_get_sizes): nx and ni must equal the numbers of continuous
+ *     states and event indicators (FMI 2.0 fixes them), nvr, nUnknown and nKnown may not exceed the number
+ *     of variables of the call's type (none for Boolean and String; the derivative functions: times
+ *     maxOutputDerivativeOrder, or INPUT_ORDERS_PER_CALL for input derivatives), a serialized state's size
+ *     must be the length its header states (fmus/state.py). A wrong count gets fmi2Error and one message;
+ *     nothing of the host's arrays is read. (No FMU can see the length of a host's array: a count within
+ *     these bounds is trusted.) The value references themselves and the state machine are checked by the
+ *     slave, before any value is used.
  *
  * The interpreter the loader starts is never finalized: Py_Finalize at process exit is what crashed C
  * hosts before (docs/reliability.md, finding 1), other FMUs of the process may still use it, and numpy
@@ -148,6 +158,9 @@ typedef struct {
     PyObject *set_time, *set_states, *get_derivatives;   /* ... and of every right-hand side (Model Exchange), */
     PyObject *get_states, *get_indicators;    /* and of every step of a host's solver */
     VrCache set_vrs, get_vrs;
+    size_t nx, ni;                           /* the FMU's continuous states and event indicators (fmi2_get_sizes) */
+    size_t n_reals, n_integers;              /* its Real and Integer variables */
+    size_t max_output_order;                 /* its maxOutputDerivativeOrder */
     PyObject **states;                       /* the FMU states this instance gave out (strong references) */
     size_t n_states, cap_states;
 } Instance;
@@ -892,8 +905,32 @@ static fmi2Status copy_values(Instance *instance, const char *function, Answer a
     return answer.status;
 }
 
-/* Take the new slave and tell it the host's fmuType (slave.fmi2_set_interface). A slave that is not an
- * emcosim one can only be a Co-Simulation instance (pythonfmu answers). GIL held. */
+/* The slave's numbers every count is checked against (slave.fmi2_get_sizes: nx, ni, Real and Integer
+ * variables). GIL held. */
+static fmi2Status take_sizes(Instance *instance)
+{
+    Answer answer = ask(instance, "fmi2Instantiate", NULL, "fmi2_get_sizes", NULL, 0, 3);
+    long sizes[5] = {-1, -1, -1, -1, -1};
+    for (int i = 0; answer.status <= fmi2Warning && answer.value != NULL && i < 5; i++)
+        sizes[i] = py.PyLong_AsLong(py.PyTuple_GetItem(answer.value, i));
+    py.PyErr_Clear();
+    clear(&answer.value);
+    if (answer.status > fmi2Warning) return answer.status;
+    for (int i = 0; i < 5; i++)
+        if (sizes[i] < 0) {
+            emitf(instance, fmi2Error, "fmi2Instantiate: the slave's fmi2_get_sizes did not answer five counts");
+            return fmi2Error;
+        }
+    instance->nx = (size_t)sizes[0];
+    instance->ni = (size_t)sizes[1];
+    instance->n_reals = (size_t)sizes[2];
+    instance->n_integers = (size_t)sizes[3];
+    instance->max_output_order = (size_t)sizes[4];
+    return fmi2OK;
+}
+
+/* Take the new slave, its sizes, and tell it the host's fmuType (slave.fmi2_set_interface). A slave that is
+ * not an emcosim one can only be a Co-Simulation instance (pythonfmu answers). GIL held. */
 static fmi2Status tell_interface(Instance *instance)
 {
     take_slave(instance);
@@ -902,6 +939,8 @@ static fmi2Status tell_interface(Instance *instance)
         emitf(instance, fmi2Error, "fmi2Instantiate: this FMU's slave is not an emcosim one: Co-Simulation only");
         return fmi2Error;
     }
+    fmi2Status sized = take_sizes(instance);
+    if (sized > fmi2Warning) return sized;
     PyObject *args[1] = {py.PyLong_FromLong((long)instance->type)};
     return ask(instance, "fmi2Instantiate", NULL, "fmi2_set_interface", args, 1, 2).status;
 }
@@ -1037,6 +1076,12 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
                                   "logAll"};
     Instance *instance = lookup(c, "fmi2SetDebugLogging");
     if (instance == NULL) return fmi2Error;
+    if (nCategories > 0 && (categories == NULL || nCategories > 5)) {
+        emitf(instance, fmi2Error, "fmi2SetDebugLogging: %zu categories %s", nCategories,
+              categories == NULL ? "in a NULL array" : "are more than this FMU's 5 (logStatusWarning, logStatusDiscard, "
+              "logStatusError, logStatusFatal, logAll)");
+        return fmi2Error;
+    }
     for (size_t i = 0; i < nCategories; i++) {
         int found = 0;
         for (int k = 0; categories != NULL && categories[i] != NULL && k < 5; k++) found = found || !strcmp(categories[i], known[k]);
@@ -1056,18 +1101,38 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
 #define BEGIN(function, forward)                                                                          \
     Instance *instance = lookup(c, #function);                                                            \
     if (instance == NULL) return fmi2Error;                                                               \
-    if (instance->slave == NULL) return ({                                                                \
+    if (instance->slave == NULL) {                                                                        \
         instance->busy++;                                                                                 \
         fmi2Status forwarded_ = (forward);                                                                \
         instance->busy--;                                                                                 \
-        forwarded_;                                                                                       \
-    });
+        return forwarded_;                                                                                \
+    }
 
 #define NULL_ARRAYS(function, condition)                                                                  \
     if (condition) {                                                                                      \
         emitf(instance, fmi2Error, "%s: NULL array or pointer argument", #function);                       \
         return fmi2Error;                                                                                 \
     }
+
+/* A count that is not the FMU's (header, point 6): refused before an element of the host's arrays is read.
+ * The format (a string literal) and its arguments follow the condition. */
+#define COUNT(function, condition, ...)                                                                   \
+    if (condition) {                                                                                      \
+        emitf(instance, fmi2Error, #function ": " __VA_ARGS__);                                           \
+        return fmi2Error;                                                                                 \
+    }
+
+/* Input derivatives: FMI 2.0 sets no highest order and the FMUs accept every order >= 1 (fmus/derivatives.py);
+ * masters send their sources' maxOutputDerivativeOrder, 1 to 3 in practice. More entries in one call than this
+ * many per Real variable are refused as a count that cannot be the array's. */
+#define INPUT_ORDERS_PER_CALL 16
+#define STRING_(x) #x
+#define STRING(x) STRING_(x)
+
+/* nvr of a call on `n` variables of `type`: at most n (a host's duplicates beyond that are refused too). */
+#define VR_COUNT(function, nvr, n, type)                                                                  \
+    COUNT(function, (nvr) > (n), "%zu value references, more than this FMU's %zu " type " variables", (size_t)(nvr), \
+          (size_t)(n))
 
 static fmi2Status ask_status(Instance *instance, const char *function, PyObject *bound, const char *method,
                              PyObject *args[], int nargs)
@@ -1126,6 +1191,7 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 {
     BEGIN(fmi2SetReal, lib.fmi2SetReal(instance->inner, vr, nvr, value))
     NULL_ARRAYS(fmi2SetReal, nvr > 0 && (vr == NULL || value == NULL))
+    VR_COUNT(fmi2SetReal, nvr, instance->n_reals, "Real")
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[2] = {cached_vrs(&instance->set_vrs, vr, nvr), list_of_reals(value, nvr)};
     Answer answer = ask(instance, "fmi2SetReal", instance->set_real, NULL, args, 2, 2);
@@ -1137,6 +1203,7 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 {
     BEGIN(fmi2GetReal, lib.fmi2GetReal(instance->inner, vr, nvr, value))
     NULL_ARRAYS(fmi2GetReal, nvr > 0 && (vr == NULL || value == NULL))
+    VR_COUNT(fmi2GetReal, nvr, instance->n_reals, "Real")
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[1] = {cached_vrs(&instance->get_vrs, vr, nvr)};
     fmi2Status status = copy_values(instance, "fmi2GetReal",
@@ -1149,6 +1216,7 @@ fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
 {
     BEGIN(fmi2SetInteger, lib.fmi2SetInteger(instance->inner, vr, nvr, value))
     NULL_ARRAYS(fmi2SetInteger, nvr > 0 && (vr == NULL || value == NULL))
+    VR_COUNT(fmi2SetInteger, nvr, instance->n_integers, "Integer")
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[2] = {list_of_vrs(vr, nvr), list_of_ints(value, nvr)};
     Answer answer = ask(instance, "fmi2SetInteger", NULL, "fmi2_set_integer", args, 2, 2);
@@ -1160,6 +1228,7 @@ fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
 {
     BEGIN(fmi2GetInteger, lib.fmi2GetInteger(instance->inner, vr, nvr, value))
     NULL_ARRAYS(fmi2GetInteger, nvr > 0 && (vr == NULL || value == NULL))
+    VR_COUNT(fmi2GetInteger, nvr, instance->n_integers, "Integer")
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[1] = {list_of_vrs(vr, nvr)};
     fmi2Status status = copy_values(instance, "fmi2GetInteger",
@@ -1168,13 +1237,13 @@ fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     return status;
 }
 
-/* emcosim slaves have Real and Integer variables only. */
+/* emcosim slaves have Real and Integer variables only: nvr > 0 is refused (the arrays are not read). */
 static fmi2Status no_such_variables(Instance *instance, const char *function, const char *type,
                                     const fmi2ValueReference vr[], size_t nvr)
 {
+    (void)vr;
     if (nvr == 0) return fmi2OK;
-    emitf(instance, fmi2Error, "%s: valueReference %u is not a %s variable (this FMU has none)", function,
-          vr ? vr[0] : 0u, type);
+    emitf(instance, fmi2Error, "%s: %zu value references, but this FMU has no %s variables", function, nvr, type);
     return fmi2Error;
 }
 
@@ -1332,10 +1401,42 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte s
     return status;
 }
 
+/* A serialized state (fmus/state.py, format 2): STATE_HEADER, the format version (1 byte), the length of the
+ * whole state (8 bytes, big endian), sha256 (32 bytes), the JSON payload. */
+#define STATE_HEADER "emcosim FMU state\n"
+#define STATE_FORMAT 2
+#define STATE_LENGTH_AT (sizeof STATE_HEADER)            /* the header's bytes, then the version: 18 + 1 */
+#define STATE_LENGTH_END (STATE_LENGTH_AT + 8)
+
+/* '' if `size` bytes may be read from `data`: they start like a serialized state whose length is `size`
+ * (read are the first STATE_LENGTH_END bytes, and only if size covers them); else why not. */
+static const char *serialized_size_problem(const fmi2Byte *data, size_t size, char *why, size_t n)
+{
+    if (size < STATE_LENGTH_END || memcmp(data, STATE_HEADER, sizeof STATE_HEADER - 1) != 0) {
+        snprintf(why, n, "%zu bytes that are not a serialized emcosim FMU state", size);
+        return why;
+    }
+    if ((unsigned char)data[STATE_LENGTH_AT - 1] != STATE_FORMAT) {
+        snprintf(why, n, "format version %d of the serialized state; this FMU reads version %d",
+                 (unsigned char)data[STATE_LENGTH_AT - 1], STATE_FORMAT);
+        return why;
+    }
+    unsigned long long length = 0;
+    for (size_t i = STATE_LENGTH_AT; i < STATE_LENGTH_END; i++) length = length << 8 | (unsigned char)data[i];
+    if (length != (unsigned long long)size) {
+        snprintf(why, n, "size %zu is not the serialized state's length %llu (fmi2SerializedFMUstateSize): it "
+                 "was cut, or the size is not its buffer's", size, length);
+        return why;
+    }
+    return NULL;
+}
+
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size, fmi2FMUstate *state)
 {
     BEGIN(fmi2DeSerializeFMUstate, lib.fmi2DeSerializeFMUstate(instance->inner, serializedState, size, state))
     NULL_ARRAYS(fmi2DeSerializeFMUstate, state == NULL || (serializedState == NULL && size > 0))
+    char why[256];
+    COUNT(fmi2DeSerializeFMUstate, serialized_size_problem(serializedState, size, why, sizeof why) != NULL, "%s", why)
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[1] = {py.PyBytes_FromStringAndSize(serializedState ? serializedState : "", (Py_ssize_t)size)};
     fmi2Status status = give_state(instance, "fmi2DeSerializeFMUstate",
@@ -1357,6 +1458,9 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference
 {
     BEGIN(fmi2SetRealInputDerivatives, unsupported(instance, "fmi2SetRealInputDerivatives"))
     NULL_ARRAYS(fmi2SetRealInputDerivatives, nvr > 0 && (vr == NULL || order == NULL || value == NULL))
+    COUNT(fmi2SetRealInputDerivatives, nvr > INPUT_ORDERS_PER_CALL * instance->n_reals,
+          "%zu entries, more than " STRING(INPUT_ORDERS_PER_CALL) " orders for each of this FMU's %zu Real variables",
+          nvr, instance->n_reals)
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[3] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr), list_of_reals(value, nvr)};
     Answer answer = ask(instance, "fmi2SetRealInputDerivatives", NULL, "fmi2_set_real_input_derivatives", args, 3, 2);
@@ -1369,6 +1473,9 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 {
     BEGIN(fmi2GetRealOutputDerivatives, unsupported(instance, "fmi2GetRealOutputDerivatives"))
     NULL_ARRAYS(fmi2GetRealOutputDerivatives, nvr > 0 && (vr == NULL || order == NULL || value == NULL))
+    COUNT(fmi2GetRealOutputDerivatives, nvr > instance->n_reals * instance->max_output_order, "%zu entries, more "
+          "than this FMU's %zu Real variables times its maxOutputDerivativeOrder %zu", nvr, instance->n_reals,
+          instance->max_output_order)
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[2] = {list_of_vrs(vr, nvr), list_of_ints(order, nvr)};
     Answer answer = ask(instance, "fmi2GetRealOutputDerivatives", NULL, "fmi2_get_real_output_derivatives", args, 2, 3);
@@ -1386,6 +1493,8 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
     BEGIN(fmi2GetDirectionalDerivative, unsupported(instance, "fmi2GetDirectionalDerivative"))
     NULL_ARRAYS(fmi2GetDirectionalDerivative, (nUnknown > 0 && (vUnknown_ref == NULL || dvUnknown == NULL)) ||
                                               (nKnown > 0 && (vKnown_ref == NULL || dvKnown == NULL)))
+    VR_COUNT(fmi2GetDirectionalDerivative, nUnknown, instance->n_reals, "Real")
+    VR_COUNT(fmi2GetDirectionalDerivative, nKnown, instance->n_reals, "Real")
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[3] = {list_of_vrs(vUnknown_ref, nUnknown), list_of_vrs(vKnown_ref, nKnown),
                          list_of_reals(dvKnown, nKnown)};
@@ -1429,6 +1538,7 @@ fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n
 {
     BEGIN(fmi2SetContinuousStates, unsupported(instance, "fmi2SetContinuousStates"))
     NULL_ARRAYS(fmi2SetContinuousStates, nx > 0 && x == NULL)
+    COUNT(fmi2SetContinuousStates, nx != instance->nx, "%zu values for %zu states", nx, instance->nx)
     PyGILState_STATE gil = py.PyGILState_Ensure();
     PyObject *args[1] = {list_of_reals(x, nx)};
     Answer answer = ask(instance, "fmi2SetContinuousStates", instance->set_states, NULL, args, 1, 2);
@@ -1439,10 +1549,14 @@ fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n
 /* fmi2GetContinuousStates, fmi2GetDerivatives, fmi2GetEventIndicators, fmi2GetNominalsOfContinuousStates:
  * the slave's method answers (status, values, message) for n values. */
 static fmi2Status get_vector(Instance *instance, const char *function, PyObject *bound, const char *method,
-                             fmi2Real values[], size_t n)
+                             fmi2Real values[], size_t n, size_t fmu_n, const char *what)
 {
     if (n > 0 && values == NULL) {
         emitf(instance, fmi2Error, "%s: NULL array or pointer argument", function);
+        return fmi2Error;
+    }
+    if (n != fmu_n) {
+        emitf(instance, fmi2Error, "%s: %zu values asked for, the FMU has %zu %s", function, n, fmu_n, what);
         return fmi2Error;
     }
     PyGILState_STATE gil = py.PyGILState_Ensure();
@@ -1455,26 +1569,29 @@ static fmi2Status get_vector(Instance *instance, const char *function, PyObject 
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx)
 {
     BEGIN(fmi2GetContinuousStates, unsupported(instance, "fmi2GetContinuousStates"))
-    return get_vector(instance, "fmi2GetContinuousStates", instance->get_states, NULL, x, nx);
+    return get_vector(instance, "fmi2GetContinuousStates", instance->get_states, NULL, x, nx, instance->nx,
+                      "states");
 }
 
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx)
 {
     BEGIN(fmi2GetDerivatives, unsupported(instance, "fmi2GetDerivatives"))
-    return get_vector(instance, "fmi2GetDerivatives", instance->get_derivatives, NULL, derivatives, nx);
+    return get_vector(instance, "fmi2GetDerivatives", instance->get_derivatives, NULL, derivatives, nx,
+                      instance->nx, "states");
 }
 
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni)
 {
     BEGIN(fmi2GetEventIndicators, unsupported(instance, "fmi2GetEventIndicators"))
-    return get_vector(instance, "fmi2GetEventIndicators", instance->get_indicators, NULL, eventIndicators, ni);
+    return get_vector(instance, "fmi2GetEventIndicators", instance->get_indicators, NULL, eventIndicators, ni,
+                      instance->ni, "event indicators");
 }
 
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx)
 {
     BEGIN(fmi2GetNominalsOfContinuousStates, unsupported(instance, "fmi2GetNominalsOfContinuousStates"))
     return get_vector(instance, "fmi2GetNominalsOfContinuousStates", NULL, "fmi2_get_nominals_of_continuous_states",
-                      x_nominal, nx);
+                      x_nominal, nx, instance->nx, "states");
 }
 
 fmi2Status fmi2EnterEventMode(fmi2Component c)

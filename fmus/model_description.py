@@ -1,15 +1,16 @@
 """modelDescription.xml of an emcosim FMU, written whole from the slave's declared variables (FMI 2.0,
 section 2.2): both interfaces (<ModelExchange> and <CoSimulation>, one binary), UnitDefinitions, every
 variable with its unit and description, the state derivatives der(x) of an FMU with states, and a
-ModelStructure with real dependencies (Outputs, Derivatives, InitialUnknowns), and for an FMU that drops
-input derivatives above some order, emcosim's vendor annotation saying which it uses (`TOOL`, below).
+ModelStructure with real dependencies (Outputs, Derivatives, InitialUnknowns), and emcosim's vendor
+annotations: for an FMU that drops input derivatives above some order, which it uses (`TOOL`, below); for a
+plant or controller of a device, the device whose model it holds (`DEVICE_TOOL`, below).
 The GUID is derived from the content and the build, so that the same inputs give the same bytes.
 """
 from __future__ import annotations
 
 import hashlib
 import uuid
-from typing import Any
+from typing import Any, NamedTuple
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 from .pythonfmu_workarounds import PYTHONFMU_VERSION
@@ -29,6 +30,22 @@ LOG_CATEGORIES = {
 TOOL = "org.emcosim"
 INPUT_DERIVATIVES = "InputDerivatives"
 ORDER_USED = "orderUsed"
+# The device whose model a plant or controller FMU holds (read by emcosim/engine/vendor.py), in a Tool of its
+# own (fmi2Annotation: one element per Tool, each Tool name once):
+#   <Tool name="org.emcosim.device"><Device name="Solenoid" model="<sha256>" role="controller"/></Tool>
+# A plant declares the device it is, a controller the device it was designed for: the engine refuses to
+# connect FMUs of different devices and warns where their same-named parameters differ.
+DEVICE_TOOL = "org.emcosim.device"
+DEVICE = "Device"
+
+
+class DeviceIdentity(NamedTuple):
+    """The device whose model an FMU holds: its name, a digest of its model (the sha256 of its description
+    file or device module) and the FMU's role ("plant" or "controller")."""
+
+    name: str
+    model: str
+    role: str
 
 
 def _flag(value: bool) -> str:
@@ -107,12 +124,20 @@ def model_description(slave: Any, build: str, options: dict[str, bool]) -> Eleme
 
 def _vendor_annotations(root: Element, slave: Any) -> None:
     """emcosim's <Tool> (module constants) for a slave that interpolates inputs and drops the orders above
-    `input_derivative_orders_used`; none for one that uses every order (a plant) or takes none."""
+    `input_derivative_orders_used` (none for one that uses every order, a plant, or takes none), and the
+    device <Tool> of a slave with a `device_identity`; no <VendorAnnotations> without either."""
     used = slave.input_derivative_orders_used
-    if not slave.can_interpolate_inputs or used is None:
+    identity: DeviceIdentity | None = getattr(slave, "device_identity", None)
+    orders = slave.can_interpolate_inputs and used is not None
+    if not orders and identity is None:
         return
-    tool = SubElement(SubElement(root, "VendorAnnotations"), "Tool", {"name": TOOL})
-    SubElement(tool, INPUT_DERIVATIVES, {ORDER_USED: str(int(used))})   # the Tool's one element (fmi2Annotation)
+    annotations = SubElement(root, "VendorAnnotations")
+    if orders:
+        tool = SubElement(annotations, "Tool", {"name": TOOL})
+        SubElement(tool, INPUT_DERIVATIVES, {ORDER_USED: str(int(used))})   # the Tool's one element (fmi2Annotation)
+    if identity is not None:
+        tool = SubElement(annotations, "Tool", {"name": DEVICE_TOOL})
+        SubElement(tool, DEVICE, {"name": identity.name, "model": identity.model, "role": identity.role})
 
 
 def _indices(names: list[str], index: dict[str, int]) -> str:

@@ -16,7 +16,10 @@ Default experiments (docs/fmus.md, "Run with fmpy"):
 """
 from __future__ import annotations
 
+import hashlib
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import ModuleType
 from typing import Any, Sequence
 
@@ -27,6 +30,7 @@ from components.catalog import DEVICES
 from components.device import Device
 
 from .controller import ControllerSlave
+from .model_description import DeviceIdentity
 from .plant import PlantSlave
 from .reference import ReferenceSlave
 
@@ -70,11 +74,35 @@ MODELS: dict[str, Model] = {
 
 
 def slave_class(identifier: str) -> type:
-    """The slave class of the FMU `identifier`: its adapter with the row's attributes."""
+    """The slave class of the FMU `identifier`: its adapter with the row's attributes (and, for a plant or
+    controller, its device identity: the digest of the module that defines the device's plant)."""
     model = MODELS[identifier]
+    attributes = dict(model.attributes)
+    if "device" in attributes:                  # read when the modelDescription is written (the build), not at run
+        device, adapter = attributes["device"], model.adapter   # time: a host may have deleted the source's folder
+        attributes["device_identity"] = property(
+            lambda self: identity(device, source_digest(sys.modules[device.plant.__module__]), adapter))
     return type(identifier, (model.adapter,), {"model_identifier": identifier, "summary": model.summary,
-                                               "experiment": model.experiment, **model.attributes,
+                                               "experiment": model.experiment, **attributes,
                                                "__module__": __name__})
+
+
+def source_digest(module: ModuleType) -> str:
+    """sha256 of a module's source file: the digest of a device's model where no description file gives one."""
+    return hashlib.sha256(Path(module.__file__ or "").read_bytes()).hexdigest()
+
+
+def identity(device: Device, model: str, adapter: type) -> DeviceIdentity:
+    """The device identity a plant or controller FMU declares (fmus.model_description.DeviceIdentity)."""
+    return DeviceIdentity(device.name, model, "plant" if issubclass(adapter, PlantSlave) else "controller")
+
+
+def _identity(device: Device, module: ModuleType, model: str | None, adapter: type) -> DeviceIdentity | property:
+    """`identity` with the digest `model`, or (None) a property giving it with the digest of the device module,
+    read when the modelDescription is written, not at run time."""
+    if model is not None:
+        return identity(device, model, adapter)
+    return property(lambda self: identity(device, source_digest(module), adapter))
 
 
 # the paper's equation of each design's control law
@@ -151,7 +179,7 @@ def default_experiment(device: Device, eta: Sequence[float], experiment: Sequenc
 
 
 def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = None,
-                         module_name: str = __name__) -> dict[str, type]:
+                         module_name: str = __name__, model: str | None = None) -> dict[str, type]:
     """The slave classes of a device module's FMUs, by model identifier: the plant <name> (PlantSlave) and one
     controller <name>_<design> (ControllerSlave) per design (default: every design of the device).
 
@@ -159,7 +187,8 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
     default_initial_state) and EXPERIMENT ((start, stop, step) of every FMU's DefaultExperiment; default
     DEFAULT_EXPERIMENT; `default_experiment` keeps the plant FMU's own run inside its domain and chooses its
     input start); a controller's inputs start at the plant's initial state and, tracking, the jet of the
-    constant reference q* = q_0."""
+    constant reference q* = q_0. Every class declares the device identity (`identity`) with the digest `model`
+    (build_device: of the description file; default: of the device module's source)."""
     device = module_device(module, designs)
     chosen = list(device.designs) if designs is None else list(designs)
     unknown = [d for d in chosen if d not in device.designs]
@@ -174,6 +203,7 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
     classes = {device.name: type(device.name, (PlantSlave,), {
         "model_identifier": device.name, "experiment": experiment, "device": device, "initial_state": initial,
         "input_start": u_0[0] if device.n_e == 1 else u_0, "__module__": module_name,
+        "device_identity": _identity(device, module, model, PlantSlave),
         "summary": f"{device.description}: inputs {u_names}, outputs the states and the energy H"})}
     q0 = initial[:device.n_m]
     for name in chosen:
@@ -183,6 +213,7 @@ def device_slave_classes(module: ModuleType, designs: Sequence[str] | None = Non
         classes[identifier] = type(identifier, (ControllerSlave,), {
             "model_identifier": identifier, "experiment": experiment, "device": device, "design": name,
             "input_start": initial + jet, "__module__": module_name,
+            "device_identity": _identity(device, module, model, ControllerSlave),
             "summary": f"{name} ({LAWS[name]}) for {device.description}: {u_names} from the states"
                        + (" and the reference jet" if design.tracking else "")})
     return classes

@@ -202,6 +202,15 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         self.interface = fmu_type
         return _OK
 
+    def fmi2_get_sizes(self) -> tuple[int, tuple[int, int, int, int, int], str]:
+        """What the binary checks the counts of every FMI call against before it reads the host's arrays
+        (fmi2Instantiate, fmi2Reset): the numbers of continuous states and of event indicators (nx and ni
+        must equal them), of Real and of Integer variables (nvr may not exceed them) and
+        maxOutputDerivativeOrder (fmi2GetRealOutputDerivatives: at most that many orders per variable)."""
+        n_reals = len(self._real_vrs)
+        return OK, (len(self.state_names), self.number_of_event_indicators, n_reals,
+                    len(self.variables) - n_reals, self.max_output_derivative_order), ""
+
     def fmi2_setup_experiment(self, tolerance_defined: int, tolerance: float, start_time: float,
                               stop_time_defined: int, stop_time: float) -> tuple[int, str]:
         where = f"{self.model_identifier}: fmi2SetupExperiment"

@@ -10,8 +10,10 @@ against the model's domain (`internal_problem`: a plant's q, p, x_e must be admi
 parameters, as at initialization, and its integrator's proposed substep finite and >= 0). Variables are
 taken as fmi2SetReal and fmi2SetInteger take them (a parameter is checked when the state is applied
 with other parameters: the model is built again from them). Serialized states carry a header, a format
-version and a sha256 checksum that deserialization checks: it catches accidents (a cut or changed
-file), not intent: anyone can write bytes with a matching checksum, so deserialization checks the
+version, the state's length in bytes and a sha256 checksum that deserialization checks. The binary
+checks the header, the version and the length against the size a host passes before it reads further
+(fmus/emcosim_fmu_loader.c reads this layout: keep both in step); the checksum catches accidents (a cut or
+changed file), not intent: anyone can write bytes with a matching checksum, so deserialization checks the
 content as fmi2SetFMUstate does (issue 26, item 8: a state with q = -1 m was accepted before).
 """
 from __future__ import annotations
@@ -25,9 +27,13 @@ from .model_exchange import CONTINUOUS, EVENT
 from .status import DONE as _OK
 from .status import ERROR, MODEL_EXCHANGE, OK
 
-# serialized FMU state: header, format version (1 byte), sha256 of the payload (32 bytes), JSON payload
+# serialized FMU state: header, format version (1 byte), length of the whole serialized state (8 bytes, big
+# endian), sha256 of the payload (32 bytes), JSON payload. Version 2 added the length: a host's size that is
+# not the state's is refused before a byte past the header is read (issue 31, item 2).
 STATE_HEADER = b"emcosim FMU state\n"
-STATE_FORMAT = 1
+STATE_FORMAT = 2
+STATE_LENGTH_BYTES = 8
+STATE_PREFIX = len(STATE_HEADER) + 1 + STATE_LENGTH_BYTES + 32      # where the JSON payload starts
 STATE_KEYS = {"model", "build", "values", "time", "initialized", "me_mode", "input_derivatives", "internal"}
 
 
@@ -76,17 +82,23 @@ class StateFunctions:
             payload = json.dumps(state, sort_keys=True).encode()
         except (TypeError, ValueError) as exc:
             return ERROR, b"", f"{self.model_identifier}: fmi2SerializeFMUstate failed: {exc}"
-        return OK, STATE_HEADER + bytes([STATE_FORMAT]) + hashlib.sha256(payload).digest() + payload, ""
+        length = (STATE_PREFIX + len(payload)).to_bytes(STATE_LENGTH_BYTES, "big")
+        return OK, STATE_HEADER + bytes([STATE_FORMAT]) + length + hashlib.sha256(payload).digest() + payload, ""
 
     def fmi2_deserialize_fmu_state(self, data: bytes) -> tuple[int, dict | None, str]:
         """The state of serialized bytes, after checking header, format version, checksum and content."""
         where = f"{self.model_identifier}: fmi2DeSerializeFMUstate"
-        start = len(STATE_HEADER) + 1 + 32
-        if len(data) < start or not data.startswith(STATE_HEADER):
+        start = STATE_PREFIX
+        if len(data) < len(STATE_HEADER) + 1 or not data.startswith(STATE_HEADER):
             return ERROR, None, f"{where}: {len(data)} bytes that are not a serialized emcosim FMU state"
         if data[len(STATE_HEADER)] != STATE_FORMAT:
             return ERROR, None, (f"{where}: format version {data[len(STATE_HEADER)]} of the serialized state; "
                                  f"this FMU reads version {STATE_FORMAT}")
+        at = len(STATE_HEADER) + 1
+        length = int.from_bytes(data[at:at + STATE_LENGTH_BYTES], "big") if len(data) >= start else -1
+        if length != len(data):
+            return ERROR, None, (f"{where}: {len(data)} bytes given, the serialized state says it has "
+                                 f"{length if length >= 0 else 'more'}: it was cut or is not one")
         payload = data[start:]
         if hashlib.sha256(payload).digest() != data[start - 32:start]:
             return ERROR, None, f"{where}: checksum mismatch: the bytes were changed or cut"

@@ -14,6 +14,9 @@ SOURCE = Path(__file__).parent / "fixtures" / "c_host.c"
 LOOP_SOURCE = Path(__file__).parent / "fixtures" / "c_loop.c"
 CALLS_SOURCE = Path(__file__).parent / "fixtures" / "c_calls.c"
 THREADS_SOURCE = Path(__file__).parent / "fixtures" / "c_threads.c"
+GUARD_SOURCE = Path(__file__).parent / "fixtures" / "c_guard.c"
+# AddressSanitizer and UndefinedBehaviorSanitizer (gcc's libasan and libubsan: Debian's gcc 12 has them)
+SANITIZE = ["-fsanitize=address,undefined", "-fno-omit-frame-pointer", "-g"]
 TOYS = Path(__file__).parent / "fixtures" / "emcosim_toy_derivatives.py"
 _TOYS: dict[str, Path] = {}
 
@@ -27,15 +30,42 @@ def toy_fmus(folder: Path) -> dict[str, Path]:
     return dict(_TOYS)
 
 
-def compile_c_host(exe: Path, source: Path = SOURCE) -> str | None:
+def compile_c_host(exe: Path, source: Path = SOURCE, sanitize: bool = False) -> str | None:
     """Compile the C host (or another C master of tests/fixtures) to `exe`: plain C, linked with libdl and
-    libm only (no libpython: the FMU's loader starts Python itself). None, or why it cannot be built here."""
+    libm only (no libpython: the FMU's loader starts Python itself); with `sanitize`, under `SANITIZE`. None,
+    or why it cannot be built here."""
     if shutil.which("gcc") is None:
         return "needs gcc"
     import fmpy
 
-    subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"), str(source),
-                    "-o", str(exe), "-ldl", "-lm", "-lpthread"], check=True, capture_output=True)
+    flags = SANITIZE + ["-O1"] if sanitize else ["-O2"]
+    run = subprocess.run(["gcc", *flags, "-Wall", "-Wextra", "-Werror", "-I", str(Path(fmpy.__file__).parent / "c-code"),
+                          str(source), "-o", str(exe), "-ldl", "-lm", "-lpthread"], capture_output=True, text=True)
+    if run.returncode != 0 and sanitize:
+        return f"gcc cannot build with {' '.join(SANITIZE)} here: {run.stderr[-500:]}"
+    run.check_returncode()
+    return None
+
+
+def compile_test_loader(so: Path, flags: list[str], cc: str = "gcc") -> str | None:
+    """The FMU loader (fmus/emcosim_fmu_loader.c) compiled to `so` as fmus/build.py compiles it (compile_loader:
+    -Wall -Wextra -Werror, the SONAME), with `flags` (e.g. SANITIZE, -std=c99) and the compiler `cc`; None, or
+    why it cannot be built here (no such compiler; a warning or error: its text)."""
+    import sysconfig
+
+    import fmpy
+
+    from fmus.build import LOADER, LOADER_SONAME
+
+    if shutil.which(cc) is None:
+        return f"needs {cc}"
+    gcc_only = ["-Wno-format-truncation"] if cc == "gcc" else []       # build.py's: messages are cut on purpose
+    run = subprocess.run([cc, "-std=gnu11", *flags, "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
+                          *gcc_only, "-Werror", f'-DLOADER_SONAME="{LOADER_SONAME}"', f"-Wl,-soname,{LOADER_SONAME}",
+                          "-I", str(Path(fmpy.__file__).parent / "c-code"), "-I", sysconfig.get_paths()["include"],
+                          str(LOADER), "-o", str(so), "-ldl"], capture_output=True, text=True)
+    if run.returncode != 0:
+        return f"the loader does not compile with {cc} {' '.join(flags)}: {run.stderr[-1500:]}"
     return None
 
 
@@ -135,3 +165,24 @@ def threads_command(exe: Path, folders: list[Path], outputs: list[str], rounds: 
         args += [str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier, (folder / "resources").as_uri(),
                  md.guid, str(vr[output])]
     return args
+
+
+def run_guard(exe: Path, folder: Path, mode: str, env: dict[str, str] | None = None
+              ) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
+    """Run the C host of tests/fixtures/c_guard.c in `mode` (guard, illegal, oob) on an extracted FMU
+    (`extract`) with an empty environment plus `env`: its counts (states, event indicators, Real and Integer
+    variables), a Real output and a Real input come from the FMU's modelDescription.xml. The process and
+    its output lines split into words."""
+    md = read_model_description(str(folder / "modelDescription.xml"))
+    identifier = md.coSimulation.modelIdentifier
+    reals = [v for v in md.modelVariables if v.type == "Real"]
+    integers = [v for v in md.modelVariables if v.type == "Integer"]
+    output = next(v for v in reals if v.causality == "output")
+    inputs = [v for v in reals if v.causality == "input"] or [v for v in reals if v.causality == "parameter"]
+    args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
+            (folder / "resources").as_uri(), md.guid, mode, str(len(md.derivatives)),
+            str(md.numberOfEventIndicators or 0), str(len(reals)), str(len(integers)), str(output.valueReference),
+            str(inputs[0].valueReference)]
+    run = subprocess.run(["env", "-i", *(f"{k}={v}" for k, v in (env or {}).items()), *args], capture_output=True,
+                         text=True, timeout=300)
+    return run, [line.split() for line in run.stdout.splitlines()]

@@ -18,13 +18,13 @@ from typing import Callable
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from fmus.state import STATE_HEADER
+from fmus.state import STATE_LENGTH_BYTES, STATE_PREFIX
 from tests.helpers import Slave
 
 OK, DISCARD, ERROR = 0, 2, 3
 PLANTS = {"MEMS": (1e-6, 25.0), "Maglev": (1e-3, 0.0)}          # step, input u
 CONTROLLERS = ("MEMS_Proposition1", "MEMS_Theorem2", "Maglev_Proposition2", "Maglev_Theorem3")
-_START = len(STATE_HEADER) + 1 + 32                               # header, format version, sha256
+_START = STATE_PREFIX                                     # header, format version, length, sha256
 
 
 def _serialized(slave: Slave) -> bytes:
@@ -39,7 +39,8 @@ def _resigned(data: bytes, edit: Callable[[dict], None]) -> bytes:
     payload = json.loads(data[_START:])
     edit(payload)
     body = json.dumps(payload, sort_keys=True).encode()
-    return data[:_START - 32] + hashlib.sha256(body).digest() + body
+    length = (_START + len(body)).to_bytes(STATE_LENGTH_BYTES, "big")
+    return data[:_START - 32 - STATE_LENGTH_BYTES] + length + hashlib.sha256(body).digest() + body
 
 
 def _deserialize(slave: Slave, data: bytes):

@@ -54,7 +54,8 @@ def test_fmpy_validate_finds_no_problems(fmus, identifier):
 def test_the_input_derivative_order_used_is_declared_where_orders_are_dropped(fmus, identifier):
     """Controllers drop input derivatives above order 1 and say so in emcosim's vendor annotation (FMI 2.0
     has no attribute for it), between DefaultExperiment and ModelVariables (fmi2ModelDescription's order);
-    plants integrate every order and the Reference has no inputs: no annotation."""
+    plants integrate every order and the Reference has no inputs: no such annotation. Plants and controllers
+    declare their device (vendor.device); the Reference none."""
     from xml.etree import ElementTree as ET
 
     from emcosim.engine import vendor
@@ -67,7 +68,15 @@ def test_the_input_derivative_order_used_is_declared_where_orders_are_dropped(fm
         assert tags.index("VendorAnnotations") == tags.index("DefaultExperiment") + 1 == tags.index("ModelVariables") - 1
         assert vendor.input_order_used(fmus[identifier]) == (1, "")
     else:
-        assert "VendorAnnotations" not in tags and vendor.input_order_used(fmus[identifier]) == (None, "")
+        assert declared == [] and vendor.input_order_used(fmus[identifier]) == (None, "")
+    # the device whose model it holds (issue 31): plants and controllers, not the Reference
+    device, note = vendor.device(fmus[identifier])
+    if identifier == "Reference":
+        assert "VendorAnnotations" not in tags and (device, note) == (None, "")
+    else:
+        name = identifier.split("_")[0]
+        assert note == "" and device.name == name and len(device.model) == 64
+        assert device.role == ("controller" if identifier in CONTROLLERS else "plant")
 
 
 def test_capabilities_and_structure(fmus):

@@ -16,6 +16,7 @@ import math
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 from contextlib import contextmanager
@@ -24,12 +25,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emcosim.engine import binding, ode
+from emcosim.engine import binding, ode, stopping
 from emcosim.engine import model_exchange as me
-from emcosim.engine.errors import ScenarioError, SimulationError
+from emcosim.engine.errors import Interrupted, LimitError, OptionError, ScenarioError, SimulationError
 from emcosim.engine.master import simulate
 from emcosim.engine.options import RunOptions, experiment
-from emcosim.engine.outputs import PARTIAL_MARK
+from emcosim.engine.outputs import PARTIAL_MARK, ResultFile
 from emcosim.engine.plan import make_plan
 from emcosim.engine.results import read_csv
 from emcosim.engine.ssd import Component, Connection, Connector, Parameter, Scenario, read_scenario
@@ -369,3 +370,151 @@ def test_the_plants_boundary_is_the_reason_given_when_the_controller_fails_there
     t = float(re.search(r"at t = ([0-9.e+-]+) s", message).group(1))
     assert abs(t - 1.6479e-5) < 1e-9, message
     assert info.value.result is not None and info.value.result.rows[0][0] == 0.0
+
+
+# ---- bounded, stoppable runs (issue 31) ---------------------------------------------------------------
+@pytest.mark.parametrize("kwargs, words", [
+    ({"rtol": 1e-300}, "rtol 1e-300: below 1e-13"),
+    ({"rtol": 5e-14}, "rtol 5e-14: below 1e-13"),
+    ({"tolerance": 1e-15}, "tolerance 1e-15: a Model Exchange run cannot keep a global error below 1e-11"),
+    ({"tolerance": 9e-12}, "tolerance 9e-12: a Model Exchange run cannot keep a global error below 1e-11"),
+])
+def test_tolerances_the_solvers_cannot_resolve_are_refused(kwargs, words):
+    """scipy's solvers raise an rtol below 2.2e-14 to that but keep atol = rtol: at 1e-300 the solve never
+    left t = 0. A tolerance's solves run down to tolerance / 100. The smallest values still pass, and a
+    Co-Simulation run keeps its own rule for a tolerance (refused when its steps fall below the resolution)."""
+    with pytest.raises(OptionError, match=re.escape(words)) as info:
+        RunOptions(**ME, **kwargs)
+    assert info.value.options[0] == next(iter(kwargs))
+    RunOptions(**ME, rtol=1e-13)
+    RunOptions(**ME, tolerance=1e-11)
+    RunOptions(tolerance=1e-15)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_stop_request_ends_the_solve_at_the_next_evaluation(make, solver, monkeypatch):
+    """A signal's request (what stopping's handler records) in the middle of a solve, with no row to record
+    until the stop time: the run ends with Interrupted at the next right-hand side, not at the next row;
+    the row at t0 is kept. LSODA calls the right-hand side from Fortran: the stop crosses it."""
+    monkeypatch.setattr(stopping, "_requested", None)
+    calls = {"n": 0, "after": 0}
+    rhs = ode.System.rhs
+
+    def counted(self, t, xi):
+        calls["n"] += 1
+        if calls["n"] > 20:
+            calls["after"] += 1
+        out = rhs(self, t, xi)
+        if calls["n"] == 20:
+            stopping._requested = signal.SIGINT
+        return out
+    monkeypatch.setattr(ode.System, "rhs", counted)
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0, step_size=2.0)
+    with pytest.raises(Interrupted) as info:
+        simulate(scenario, **ME, solver=solver, rtol=1e-10, record=["d.x"])
+    assert info.value.signal == signal.SIGINT
+    assert calls["after"] <= 1, calls                       # at most the call that found the request
+    assert info.value.result.time.tolist() == [0.0]
+
+
+def test_an_fmu_failing_after_a_stop_request_ends_the_run_as_stopped(make, monkeypatch):
+    """A second Ctrl-C raised inside a Python FMU comes back as that FMU's error. Once a stop was asked for,
+    an FMU's failure ends the run as Interrupted (exit 130/143 on the command line), with the rows so far.
+    Here the request is never looked at (check disabled) and the FMU fails at t = 0.5."""
+    monkeypatch.setattr(stopping, "_requested", signal.SIGTERM)
+    monkeypatch.setattr(stopping, "check", lambda: None)
+    scenario = make([("f", "Faulty")], [], {"f": {"fail_at": 0.5}})
+    with pytest.raises(Interrupted) as info:
+        simulate(scenario, **ME, record=["f.y"])
+    assert info.value.signal == signal.SIGTERM and "interrupted by SIGTERM" in str(info.value)
+    assert isinstance(info.value.__cause__, SimulationError) and "fmi2GetDerivatives" in str(info.value.__cause__)
+    assert 0.4 < info.value.result.time[-1] < 0.5
+
+
+def test_the_grid_and_the_solver_steps_are_limited_like_communication_steps(make):
+    """max_steps bounds a Model Exchange run as it bounds a Co-Simulation one: the rows of its grid up
+    front (before anything is loaded), the steps of each solve as it goes (with solver_steps, one row each),
+    the rows so far kept."""
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0)
+    with pytest.raises(LimitError, match=r"makes 2e\+09 recorded rows \(communication points\), more than the limit "
+                                         r"of 1e\+08; give max_steps 2000000000") as info:
+        experiment(scenario, RunOptions(**ME, stop_time=2e7, step_size=0.01))
+    assert info.value.option == "max_steps"
+    experiment(scenario, RunOptions(**ME, stop_time=2e7, step_size=0.01, solver_steps=True))   # counted as it runs
+    with pytest.raises(me.RunLimit, match=r"took more than 40 steps and reached t = .* of 2 s; give a larger "
+                                          r"max_steps") as limited:
+        simulate(scenario, **ME, rtol=1e-10, solver_steps=True, max_steps=40, record=["d.x"])
+    assert "--max-steps" in limited.value.describe({"max_steps": "--max-steps"})
+    rows = limited.value.result
+    assert len(rows) == 41 and rows.time[-1] < 2.0
+    np.testing.assert_allclose(rows["d.x"], 2 * np.exp(-2 * rows.time), rtol=1e-7)
+    coarse = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0, step_size=1.0)     # 3 rows, many steps
+    with pytest.raises(me.RunLimit, match="took more than 40 steps"):
+        simulate(coarse, **ME, rtol=1e-10, max_steps=40, record=["d.x"])
+    assert simulate(coarse, **ME, rtol=1e-10, max_steps=10**4, record=["d.x"]).model_exchange.steps > 40
+
+
+def test_a_tolerance_run_streams_every_solve_and_keeps_the_rows_of_a_failing_one(make, tmp_path):
+    """With a results file (the command line's sink) every solve of a tolerance run writes its rows as they
+    come, none held: a complete run gives the same rows as the in-memory one, and a plant that fails in the
+    first solve leaves the rows before the failure in NAME.partial.csv (there were none before)."""
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0)
+    memory = simulate(scenario, **ME, tolerance=1e-5, record=["d.x", "f.x"])
+    out = tmp_path / "r.csv"
+    with ResultFile(out) as sink:
+        streamed = simulate(scenario, **ME, tolerance=1e-5, record=["d.x", "f.x"], sink=sink)
+    assert streamed.rows == [] and streamed.model_exchange.solves == memory.model_exchange.solves
+    data = read_csv(out)
+    np.testing.assert_array_equal(data["time"], memory.time)
+    np.testing.assert_array_equal(data["d.x"], memory["d.x"])
+
+    faulty = make([("f", "Faulty")], [], {"f": {"fail_at": 0.5}})
+    out = tmp_path / "f.csv"
+    with pytest.raises(SimulationError, match="fmi2GetDerivatives"):
+        with ResultFile(out) as sink:
+            simulate(faulty, **ME, tolerance=1e-4, record=["f.y"], sink=sink)
+    kept = read_csv(tmp_path / "f.partial.csv")
+    assert not out.exists() and 0.4 < kept["time"][-1] < 0.5 and len(kept["time"]) > 40
+    np.testing.assert_allclose(kept["f.y"], np.exp(-kept["time"]), rtol=1e-4)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--rtol", "1e-300"], "--rtol 1e-300: below 1e-13, the smallest relative tolerance the solvers resolve"),
+    (["--tolerance", "1e-15"], "--tolerance 1e-15: a Model Exchange run cannot keep a global error below 1e-11"),
+])
+def test_cli_refuses_tolerances_the_solvers_cannot_resolve(make, tmp_path, args, words):
+    """`emcosim run --interface-type ModelExchange --rtol 1e-300` never ended (the solver stayed at t = 0);
+    `--tolerance 1e-15` exited 0 with an estimated error far above it. Both: exit 1 in one line naming the
+    flag, before anything runs."""
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0)
+    out = tmp_path / "out.csv"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    run = subprocess.run([sys.executable, "-m", "emcosim.cli", "run", str(scenario.path.parent), "--interface-type",
+                          "ModelExchange", "-o", str(out), "--no-progress", *args], check=False, capture_output=True,
+                         text=True, cwd=tmp_path, env=env, timeout=60)
+    assert run.returncode == 1, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"emcosim: error: {words}"), run.stderr
+    assert not out.exists() and list(tmp_path.glob("out*")) == []
+
+
+def test_a_tolerance_run_whose_temporary_file_fills_the_disk_says_so(make, monkeypatch):
+    """The first solve's rows wait on a temporary file: a full disk there (the file's write failing with
+    ENOSPC after 10 rows) ends the run with a SimulationError naming the folder and the rows so far, not
+    an OSError from inside the engine."""
+    import errno
+    import io
+    import tempfile
+
+    class Full(io.BytesIO):
+        def write(self, data) -> int:
+            if self.tell() >= 10 * len(data):
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return super().write(data)
+    monkeypatch.setattr(me.tempfile, "TemporaryFile", Full)
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=2.0)
+    with pytest.raises(SimulationError, match=f"cannot keep the first solve's rows for the error estimate in a "
+                                              f"temporary file in {re.escape(tempfile.gettempdir())}: No space left "
+                                              f"on device") as info:
+        simulate(scenario, **ME, tolerance=1e-4, record=["d.x"])
+    assert len(info.value.result) == 11

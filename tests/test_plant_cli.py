@@ -87,9 +87,10 @@ def test_scenario_of_a_design_that_does_not_apply_is_refused(tmp_path, capsys):
 
 def test_ctrl_c_during_plant_build_exits_130_and_leaves_no_half_written_fmu(tmp_path, monkeypatch, capsys):
     """A SIGINT while the FMUs are written (here: inside the first archive's write) stops the build at once
-    with exit 130; no .fmu.tmp is left and the FMU being written is not there."""
+    with exit 130; nothing reaches --out and the build's marked temporary folder is removed."""
     import os
     import signal
+    import tempfile
 
     from fmus import build
 
@@ -106,7 +107,8 @@ def test_ctrl_c_during_plant_build_exits_130_and_leaves_no_half_written_fmu(tmp_
     out = tmp_path / "fmus"
     assert main(["plant", "build", str(SOLENOID), "--out", str(out)]) == 130
     assert "interrupted by SIGINT" in capsys.readouterr().err
-    assert calls and not calls[0].exists() and not list(out.glob("*.fmu.tmp"))
+    assert calls and not calls[0].exists() and (not out.exists() or not list(out.iterdir()))
+    assert not list(Path(tempfile.gettempdir()).glob(f"emcosim-{os.getpid()}-plant_build-*"))
 
 
 def test_a_signal_a_command_never_looked_at_still_makes_it_exit_nonzero(monkeypatch, capsys):

@@ -10,32 +10,69 @@ from typing import Callable, Mapping, Sequence
 from ..engine.errors import ScenarioError
 
 
+def check_device_names(device, designs: list[str], out: Path) -> None:
+    """Refuse a device whose FMUs would take the name of one of the suite's own FMUs in `out`: the Reference
+    FMU (built beside every device's) always; the paper's (fmus/models.py) when `out` is the suite's FMU
+    folder (it holds the build stamp, or is fmus.build.default_dest())."""
+    from fmus.build import FMUS, STAMP, default_dest
+
+    names = [device.name] + [device.controller_identifier(d) for d in designs]
+    suite = out.is_dir() and ((out / STAMP).exists() or out.resolve() == default_dest().resolve())
+    taken = [n for n in names if n == "Reference" or (suite and n in FMUS)]
+    if taken:
+        where = "the Reference FMU built beside it" if taken == ["Reference"] else f"the suite's FMUs in {out}"
+        raise ScenarioError(f"device {device.name!r}: its FMU {taken[0]}.fmu would replace {where}; "
+                            "rename the device (its description's name) or build into another folder")
+
+
 def build_fmus_of(description: str | Path, out: Path, progress: Callable[[str], None] | None = None) -> dict[str, Path]:
     """The plant FMU, a controller FMU per design that applies (components.plant_check: the others are
     reported through `progress` with the reason, and not built) and the Reference FMU of a description file,
     into `out` (fmus.build.build_description: the generated model module, no sympy at run time); every FMU
     carries the description as registry.DESCRIPTION_RESOURCE, by which `certify` knows the device. `progress`
     gets one line as each step starts and as each FMU is written. ValueError (a DescriptionError) for a wrong
-    entry, fmus.build.BuildError for a missing compiler or header."""
+    entry, fmus.build.BuildError for a missing compiler or header, ScenarioError for an `out` it cannot write.
+
+    Built in a marked temporary folder of this process (engine/tempdirs.py), then each FMU is written into
+    `out` by engine/outputs.write_file (a new file beside its name, renamed onto it: a link in `out` is never
+    written through; a link in the FMU's own name is refused before anything is built)."""
+    import shutil
+
     from fmus.build import build_description, build_fmus
 
+    from ..engine import tempdirs
+    from ..engine.outputs import check_destination, write_file
     from . import registry
 
     say = progress or (lambda line: None)
     desc, report, device = registry.load(description)
+    designs = list(device.designs)
+    check_device_names(device, designs, out)
     for line in report.not_applicable():                # "<design>: <why>"
         say(f"not built   {device.name}_{line}")
-    designs = list(device.designs)
-    say(f"building    {device.name} and {', '.join(f'{device.name}_{d}' for d in designs) or 'no controller'} "
-        f"into {out} ...")
-    paths = build_description(desc.source, out, designs)
-    for path in paths.values():
-        say(f"built       {path}")
-    say("building    Reference ...")
-    reference = build_fmus({"Reference": None}, out)
-    for path in reference.values():
-        say(f"built       {path}")
-    return {**paths, **reference}
+    names = [desc.name] + [f"{desc.name}_{d}" for d in designs] + ["Reference"]
+    if out.exists() and not out.is_dir():
+        raise ScenarioError(f"{out}: exists and is not a folder; --out names the folder for the FMUs")
+    if out.is_dir():
+        for name in names:                           # before the build: no minutes spent on a refusal
+            check_destination(out / f"{name}.fmu")
+    work = tempdirs.make("plant_build")
+    try:
+        say(f"building    {', '.join(names[:-1])} ...")
+        built = build_description(desc.source, work / "fmus", designs, temp_root=work)
+        say("building    Reference ...")
+        built.update(build_fmus({"Reference": None}, work / "fmus", temp_root=work))
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {}
+        for identifier, path in built.items():
+            data = path.read_bytes()
+            paths[identifier] = write_file(out / path.name, lambda f, data=data: f.write(data))  # type: ignore[misc]
+            say(f"built       {paths[identifier]}")
+    except OSError as exc:
+        raise ScenarioError(f"{out}: cannot write the FMUs: {exc.strerror or exc}") from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return paths
 
 
 def scenario_of(description: str | Path, out: str | Path, controller: str, stop_time: float, step_size: float, *,
@@ -61,6 +98,7 @@ def scenario_of(description: str | Path, out: str | Path, controller: str, stop_
     folder = Path(fmu_dir) if fmu_dir else Path("build") / desc.name
     relative = str(folder) if folder.is_absolute() else os.path.relpath(folder.resolve(), out.resolve())
     files = scenario_files(device, setup, relative)
+    check_device_names(device, [controller], folder)
     write_folder(out, files)
     missing = [f"{n}.fmu" for n in (device.name, device.controller_identifier(controller))
                if not (folder / f"{n}.fmu").is_file()]
@@ -68,19 +106,19 @@ def scenario_of(description: str | Path, out: str | Path, controller: str, stop_
 
 
 def write_folder(out: Path, files: Mapping[str, str]) -> None:
-    """Write the scenario's files into `out` (created if missing). A folder holding anything but a
-    scenario's files is refused; no file is written through a link."""
-    from ..engine.outputs import write_file
+    """Write the scenario's files as the folder `out` (its parents created if missing), whole: through an
+    engine OutputFolder (its manifest `.emcosim` lists what emcosim wrote), which replaces an existing `out`
+    only if that holds nothing but what an earlier run of emcosim wrote there, unchanged (an empty folder
+    too), and refuses anything else, naming what it holds; no file is written through a link."""
+    from ..engine.files import create_text
+    from ..engine.output_folder import OutputFolder
 
-    if out.is_symlink() or (out.exists() and not out.is_dir()):
-        raise ScenarioError(f"{out}: not a folder (a link or a file); the scenario is written into a folder")
-    if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir()
-                         if not (p.suffix in (".ssd", ".ssv") and p.is_file() and not p.is_symlink()))
-        if foreign:
-            raise ScenarioError(f"{out}: holds files that are not a scenario's ({', '.join(foreign[:5])}); "
-                                "choose an empty or new folder")
-    out.mkdir(parents=True, exist_ok=True)
-    for name, text in files.items():
-        data = text.encode("utf-8")
-        write_file(out / name, lambda f, data=data: f.write(data))   # type: ignore[misc]
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    folder = OutputFolder(out)
+    try:
+        for name, text in files.items():
+            create_text(folder.path / name, text)
+    except BaseException:
+        folder.discard()
+        raise
+    folder.commit()

@@ -7,6 +7,12 @@
 check: which of Assumptions 1-4 hold, each with its test, and which designs apply (components.plant_check).
 build: the plant FMU <name>.fmu, one controller FMU <name>_<design>.fmu per design that applies and the
 Reference FMU, into DIR (fmus.build). scenario: an SSP scenario folder (emcosim.devices.scenario).
+
+Their outputs follow the rules of the other commands' (engine/outputs.py, docs/reliability.md): the FMUs are
+built in a marked temporary folder (engine/tempdirs.py: removed by the next command if this one is killed)
+and each is written into DIR beside its name and renamed onto it (never through a link); a scenario folder is
+written whole and replaces only a folder emcosim wrote (engine/output_folder.py); a device named like one of
+the suite's FMUs that would be written into the same folder is refused.
 """
 from __future__ import annotations
 

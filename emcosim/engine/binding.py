@@ -1,11 +1,14 @@
-"""Binding a scenario to its FMUs: each component's modelDescription read (with emcosim's vendor annotation,
+"""Binding a scenario to its FMUs: each component's modelDescription read (with emcosim's vendor annotations,
 vendor.py) and its connectors checked against it, the connections checked (causality, type, units: a unit
-conversion folded into the connection's linear transformation), and the parameter values to set (the .ssv
-files', then the start values asked for), each checked against the variable it sets.
+conversion folded into the connection's linear transformation; connected FMUs declaring different devices
+refused), and the parameter values to set (the .ssv files', then the start values asked for), each checked
+against the variable it sets; where connected FMUs of one device are given different values of a same-named
+parameter, `model_differences` says so.
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from . import fmi, units, vendor
@@ -55,8 +58,8 @@ def load(scenario: Scenario, model_exchange: bool = False) -> dict[str, Instance
                                 "<CoSimulation>): run the scenario as Model Exchange")
         inst = Instance(comp.name, comp.source, md, {v.name: v for v in md.modelVariables})
         inst.input_order_used, note = vendor.input_order_used(comp.source)
-        if note:
-            inst.notes.append(note)
+        inst.device, device_note = vendor.device(comp.source)
+        inst.notes += [n for n in (note, device_note) if n]
         for conn in comp.connectors:
             var = inst.variable(conn.name, scenario)
             if var.type != conn.type:
@@ -100,7 +103,73 @@ def check_connections(scenario: Scenario, instances: dict[str, Instance]) -> lis
             raise ScenarioError(f"{scenario.path}: input {c.end} is fed by both {fed[c.end]} and {c.start}")
         fed[c.end] = c.start
         out.append(_with_unit_conversion(scenario, instances, c) if src.type == "Real" else c)
+    check_devices(scenario, instances)
     return out
+
+
+def connected_pairs(scenario: Scenario, instances: dict[str, Instance]) -> list[tuple[Instance, Instance]]:
+    """The pairs of components joined by at least one connection (either way), each once, in component order."""
+    order = {name: i for i, name in enumerate(instances)}
+    pairs = {tuple(sorted((c.start_element, c.end_element), key=order.__getitem__)) for c in scenario.connections
+             if c.start_element != c.end_element and c.start_element in order and c.end_element in order}
+    return [(instances[a], instances[b]) for a, b in sorted(pairs, key=lambda p: (order[p[0]], order[p[1]]))]
+
+
+def check_devices(scenario: Scenario, instances: dict[str, Instance]) -> None:
+    """Refuse connected FMUs that declare different devices (vendor.py: a controller designed for one device
+    connected to the plant of another, or one built from another version of the device's model). FMUs that
+    declare none are not compared."""
+    for a, b in connected_pairs(scenario, instances):
+        if a.device is None or b.device is None or (a.device.name, a.device.model) == (b.device.name, b.device.model):
+            continue
+        why = ("different devices" if a.device.name != b.device.name else
+               f"two different models of device {a.device.name!r} (their descriptions differ)")
+        raise ScenarioError(f"{scenario.path}: component '{a.name}' ({a.path.name}: {a.device.shown()}) is connected "
+                            f"to '{b.name}' ({b.path.name}: {b.device.shown()}): {why}. A controller runs with the "
+                            "plant it was designed for: build both from one description (emcosim plant build)")
+
+
+def model_differences(scenario: Scenario, instances: dict[str, Instance],
+                      parameters: dict[str, list[tuple[Any, Any]]]) -> list[str]:
+    """Where connected FMUs of one device (vendor.py) run with different values of a parameter of the same
+    name (an .ssv file or a start value set it on one of them): a note each, naming both values, e.g. a
+    plant's k_s set to 7000 while the controller's model of it keeps 5000. Not an error (a robustness study
+    may want it), but never silent: the runs put these notes among their warnings and into the results
+    file's header."""
+    notes = []
+    for a, b in connected_pairs(scenario, instances):
+        if a.device is None or b.device is None or (a.device.name, a.device.model) != (b.device.name, b.device.model):
+            continue
+        if a.device.role == "controller" and b.device.role != "controller":
+            a, b = b, a                                   # name the plant first
+        values_a, values_b = _parameter_values(a, parameters), _parameter_values(b, parameters)
+        for name in [n for n in values_a if n in values_b]:
+            va, vb = values_a[name], values_b[name]
+            if va is not None and vb is not None and not math.isclose(va, vb, rel_tol=1e-12, abs_tol=0.0):
+                notes.append(f"{a.name}.{name} = {va!r}, but the {b.device.role} '{b.name}' models it with "
+                             f"{b.name}.{name} = {vb!r} (device {a.device.name!r}): the {b.device.role} acts on a "
+                             f"model that differs from the {a.device.role} it is connected to")
+    return notes
+
+
+def _parameter_values(inst: Instance, parameters: dict[str, list[tuple[Any, Any]]]) -> dict[str, float | None]:
+    """Real parameters of an FMU by name: the value to be set, else the start value (None if not a number)."""
+    values: dict[str, float | None] = {}
+    for name, var in inst.variables.items():
+        if var.causality == "parameter" and var.type == "Real":
+            values[name] = _number(var.start)
+    for var, value in parameters.get(inst.name, []):
+        if var.name in values:
+            values[var.name] = _number(value)
+    return values
+
+
+def _number(value: Any) -> float | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
 
 
 def _end_unit(scenario: Scenario, inst: Instance, connector: str) -> units.Unit | None:

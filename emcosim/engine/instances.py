@@ -17,7 +17,8 @@ from .ssd import Scenario
 class Instance:
     """One FMU of the scenario: its component name, its .fmu, modelDescription and variables by name, the
     fmpy instance once instantiated (`fmu`) and the messages it logged ("[status] text"); the input
-    derivative order it declares it uses (vendor.py; None: not declared) and what loading it warned of."""
+    derivative order it declares it uses and the device whose model it holds (vendor.py; None: not declared)
+    and what loading it warned of."""
 
     name: str
     path: Path
@@ -28,6 +29,7 @@ class Instance:
     callbacks: Any = None
     model_exchange: bool = False                     # instantiated for Model Exchange
     input_order_used: int | None = None              # emcosim's vendor annotation (vendor.py)
+    device: Any = None                               # the device it declares (vendor.Device), or None
     notes: list[str] = field(default_factory=list)   # warnings of loading ("text"), kept over resets
 
     def variable(self, name: str, scenario: Scenario):

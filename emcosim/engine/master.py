@@ -220,7 +220,8 @@ class Simulation:
                                             requested, self._accepted)
         if rewind and sink is not None:
             sink.rewind()                         # the second pass replaces the first's rows
-        result = Result(plan.columns, sink=sink)
+        result = Result(plan.columns, sink=sink,
+                        notes=binding.model_differences(self.scenario, self.instances, parameters))
         stepper = Stepper(self.scenario, self.instances, plan, [0.0] * n_slots(plan),
                           self._derivatives(plan, orders, self.instances, requested, implicit, self._plans))
         _initialize(self.scenario, self.instances, parameters, planned, stepper, tolerance)
@@ -231,7 +232,7 @@ class Simulation:
         first_step = planned.step_size if tolerance is None else min(planned.step_size, planned.max_step)
         if stepper.derivatives is not None:
             stepper.derivatives.first_step = first_step       # coupling._Guard's first decision
-        result.warnings = [f"{name}: {note}" for name, inst in self.instances.items() for note in inst.notes]
+        result.warnings += [f"{name}: {note}" for name, inst in self.instances.items() for note in inst.notes]
         result.warnings += [f"{name}: {' '.join(m.split())[len('[warning] '):]}"
                             for name, inst in self.instances.items() for m in inst.messages
                             if m.startswith("[warning]")]

@@ -11,25 +11,35 @@ that refuses (fmi2Error: e.g. a state on the boundary of its model's domain) or 
 run with a SimulationError (the rows so far are kept); changed states restart the solver. Time events
 (nextEventTime, from the initial event on) bound the solver's steps, up to and including the stop time.
 The engine knows no model: any FMI 2.0 Model Exchange FMUs wired by an SSP scenario run this way.
+
+Bounded, stoppable runs (issue 31), as the Co-Simulation ones: the rows are recorded as they come (to the
+run's sink: a results file written row by row) and the grid is computed point by point, never held; the
+grid's rows (`options.experiment`) and each solve's steps are limited by max_steps; the solver's rtol is at
+least options.MIN_RTOL. A Ctrl-C or SIGTERM stops the run at the FMUs' next evaluation (ode.py), within a
+solver step, keeping the rows so far; an FMU call that fails once a stop was asked for (a second signal
+raised inside it) ends the run as stopped, not as the FMU's failure. A run with a tolerance that the
+solvers cannot keep ends with `RunLimit` (the rows of its last solve kept, as a partial file from the
+command line), as a Co-Simulation run ends with stepcontrol.StepBelowResolution.
 """
 from __future__ import annotations
 
 import contextlib
 import math
+import tempfile
 import time
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.integrate import BDF, LSODA, Radau
 from scipy.optimize import brentq
 
-from . import binding
+from . import binding, stopping
 from . import instances as instances_
-from .errors import ScenarioError, SimulationError
+from .errors import Interrupted, ScenarioError, SimulationError
 from .fmi import FMICallException
 from .instances import last_message
 from .ode import Statistics, System, transfers
-from .options import Experiment, RunOptions, experiment, options_of
+from .options import MAX_STEPS, ME_SOLVES, MIN_RTOL, Experiment, RunOptions, experiment, options_of
 from .outputs import ResultFile
 from .plan import Plan, make_plan
 from .results import Result
@@ -39,6 +49,19 @@ SOLVERS = {"LSODA": LSODA, "BDF": BDF, "Radau": Radau}
 DEFAULT_SOLVER = "LSODA"
 DEFAULT_TOLERANCE = 1e-6          # the solver's rtol when the run asks for neither rtol nor a tolerance
 MAX_EVENT_ITERATIONS = 100        # fmi2NewDiscreteStates rounds of one event
+
+
+class RunLimit(SimulationError):
+    """A run ended by one of its settings: a tolerance the solvers cannot keep, a solve of more steps than
+    max_steps. The message names the settings as `describe(names)` spells them (the command line:
+    --tolerance, --max-steps), as errors.OptionError does; `result` holds the rows so far."""
+
+    def __init__(self, template: str, *options: str, result: Result | None = None, **fields: Any):
+        self.template, self.options, self.fields = template, options, fields
+        super().__init__(self.describe(), result)
+
+    def describe(self, names: Mapping[str, str] | None = None) -> str:
+        return self.template.format(**{o: (names or {}).get(o, o) for o in self.options}, **self.fields)
 
 
 # ---- runs ---------------------------------------------------------------------------------------------
@@ -58,13 +81,16 @@ class ModelExchangeSimulation:
 
     A run at `rtol` is one solve at the solver's relative tolerance rtol (absolute: rtol times each state's
     nominal). A run with a `tolerance` keeps the recorded variables' global error within it (each variable's
-    largest error over its largest magnitude in the run): it solves at rtol_A = FIRST tolerance and
-    rtol_B = rtol_A / 10, takes |y_A - y_B| as the error of A and, with tolerance proportionality (the global
-    error falls by at least RATIO per decade of rtol), d / (RATIO - 1) as the error of B; B is the result if
-    that is within AIM tolerance, else a third solve at the rtol that proportionality gives for AIM
-    tolerance. `result.model_exchange` reports the solves and the estimate."""
+    largest error over its largest magnitude in the run): it solves at rtol_A = FIRST tolerance (FIRST =
+    10 / ME_SOLVES) and rtol_B = rtol_A / 10, takes |y_A - y_B| as the error of A and, with tolerance
+    proportionality (the global error falls by at least RATIO per decade of rtol), d / (RATIO - 1) as the
+    error of B; B is the result if that is within AIM tolerance, else a third solve at the rtol that
+    proportionality gives for AIM tolerance (at most rtol_A). Each solve streams its rows to the sink (the
+    next one replaces them); A's rows wait on a tape (a temporary file) for B's to be compared with them one
+    by one. A third solve that would need an rtol below MIN_RTOL is not made: the run ends with `RunLimit`
+    (B's rows kept). `result.model_exchange` reports the solves and the estimate."""
 
-    FIRST, RATIO, AIM = 0.1, 5.0, 0.5
+    FIRST, RATIO, AIM = 10 / ME_SOLVES, 5.0, 0.5
 
     def __init__(self, scenario: Scenario, call: Callable[[Callable[[], None]], None] | None = None):
         self.scenario = scenario
@@ -115,13 +141,15 @@ class ModelExchangeSimulation:
         parameters = binding.parameter_values(self.scenario, self.instances, start_values or {})
         name = options.solver or DEFAULT_SOLVER
         tic = time.perf_counter()
+        limit = options.max_steps
         if options.tolerance is None:
             rtol = DEFAULT_TOLERANCE if options.rtol is None else options.rtol
-            result, system = self._solve(parameters, planned, record, name, rtol, progress, options.solver_steps, sink)
+            result, system = self._solve(parameters, planned, record, name, rtol, progress, options.solver_steps, sink,
+                                         limit)
             systems = [system]
         else:
             result, systems = self._controlled(parameters, planned, record, name, options.tolerance, progress,
-                                               options.solver_steps, sink)
+                                               options.solver_steps, sink, limit)
         if timing is not None:
             statistics = result.model_exchange
             total = time.perf_counter() - tic
@@ -134,26 +162,41 @@ class ModelExchangeSimulation:
         return result
 
     def _controlled(self, parameters, planned: Experiment, record, name: str, tolerance: float, progress,
-                    solver_steps: bool, sink: ResultFile | None) -> tuple[Result, list[System]]:
+                    solver_steps: bool, sink: ResultFile | None, limit: float) -> tuple[Result, list[System]]:
         """The solves of a run with a tolerance (class docstring)."""
         rtol_a = self.FIRST * tolerance
-        a, system_a = self._solve(parameters, planned, record, name, rtol_a, None, False, None)
-        b, system_b = self._solve(parameters, planned, record, name, rtol_a / 10, progress, False, None)
-        d = _difference(a, b)
-        estimate = d / (self.RATIO - 1)
+        rtol_b = rtol_a / 10
+        with _Tape() as tape:
+            _, system_a = self._solve(parameters, planned, record, name, rtol_a, None, False, sink, limit, tape.write)
+            difference = _Difference(tape)
+            b, system_b = self._solve(parameters, planned, record, name, rtol_b, progress, False, sink, limit,
+                                      difference.add)
+            estimate = difference.value() / (self.RATIO - 1)
         systems = [system_a, system_b]
-        if estimate <= self.AIM * tolerance and not solver_steps:
-            result = b
-            if sink is not None:                                 # the rows went to memory: now to the file
-                result = Result(b.columns, sink=sink)
-                for row in b.rows:
-                    result.append(row[0], row[1:])
-                result.model_exchange, result.warnings = b.model_exchange, b.warnings
-        else:
-            rtol_c = max(rtol_a / 10 * self.AIM * tolerance / max(estimate, 1e-300), 1e-13)
-            result, system_c = self._solve(parameters, planned, record, name, rtol_c, progress, solver_steps, sink)
+        result = b
+        if estimate > self.AIM * tolerance or solver_steps:
+            rtol_c = min(rtol_b * self.AIM * tolerance / max(estimate, 1e-300), rtol_a)
+            if rtol_c < MIN_RTOL:
+                self._account(b, systems, tolerance, estimate)
+                raise RunLimit("Model Exchange: {tolerance} {tolerance_:g} cannot be kept: the solves at rtol "
+                               "{rtol_a:g} and {rtol_b:g} estimate the second's error at {estimate:.2g}, and keeping "
+                               "{tolerance} would take rtol {rtol_c:.2g}, below the solvers' smallest ({floor:g}); "
+                               "give a larger {tolerance}", "tolerance", tolerance_=tolerance, rtol_a=rtol_a,
+                               rtol_b=rtol_b, estimate=estimate, rtol_c=rtol_c, floor=MIN_RTOL, result=b)
+            result, system_c = self._solve(parameters, planned, record, name, rtol_c, progress, solver_steps, sink,
+                                           limit)
             systems.append(system_c)
-            estimate *= result.model_exchange.rtol / (rtol_a / 10)
+            estimate *= rtol_c / rtol_b
+        self._account(result, systems, tolerance, estimate)
+        if estimate > tolerance:                                 # (proportionality makes it AIM tolerance)
+            raise RunLimit("Model Exchange: {tolerance} {tolerance_:g} was not kept: estimated error {estimate:.2g}; "
+                           "give a larger {tolerance}", "tolerance", tolerance_=tolerance, estimate=estimate,
+                           result=result)
+        return result, systems
+
+    @staticmethod
+    def _account(result: Result, systems: list[System], tolerance: float, estimate: float) -> None:
+        """The result's statistics: the tolerance, the estimate, and the cost of every solve."""
         statistics = result.model_exchange
         statistics.tolerance, statistics.estimated_error = tolerance, estimate
         statistics.solves = len(systems)
@@ -161,11 +204,12 @@ class ModelExchangeSimulation:
             if s.statistics is not statistics:
                 for field_ in ("steps", "rhs", "jacobians", "events"):
                     setattr(statistics, field_, getattr(statistics, field_) + getattr(s.statistics, field_))
-        return result, systems
 
     def _solve(self, parameters, planned: Experiment, record, name: str, rtol: float, progress,
-               solver_steps: bool, sink: ResultFile | None) -> tuple[Result, System]:
-        """One solve at rtol from a freshly reset set of FMUs."""
+               solver_steps: bool, sink: ResultFile | None, limit: float,
+               tap: Callable[[list[float]], None] | None = None) -> tuple[Result, System]:
+        """One solve at rtol from a freshly reset set of FMUs, its rows to the sink (replacing any there) and
+        each to `tap`; a solve of more than `limit` steps ends with RunLimit."""
         if self.runs > 0:
             self._reset()
         self.runs += 1
@@ -178,30 +222,114 @@ class ModelExchangeSimulation:
         system = System(self.scenario, self.instances, self.connections, plan)
         if sink is not None:
             sink.rewind()
-        result = Result(plan.columns, sink=sink)
+        notes = binding.model_differences(self.scenario, self.instances, parameters)
+        result = Result(plan.columns, sink=sink, notes=notes) if tap is None else _Tapped(plan.columns, sink, tap, notes)
         system.statistics = Statistics(name, rtol, exact_jacobian=system.jacobian_plan is not None)
         result.model_exchange = system.statistics
-        next_event = initialize(system, parameters, planned, rtol)
-        result.warnings = [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
-                           for m in inst.messages if m.startswith("[warning]")]
         try:
+            next_event = initialize(system, parameters, planned, rtol)
+            result.warnings += [f"{n}: {' '.join(m.split())[len('[warning] '):]}" for n, inst in self.instances.items()
+                                for m in inst.messages if m.startswith("[warning]")]
             with _event_reason(system):
-                _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps, next_event)
-        except SimulationError as exc:
-            exc.result = result
+                _integrate(system, result, planned, SOLVERS[name], rtol, progress, solver_steps, next_event, limit)
+        except ScenarioError as exc:
+            signum = stopping.requested()
+            if signum is not None and not isinstance(exc, Interrupted):
+                # a stop was asked for, and an FMU call failed before the next check: a second signal raised
+                # inside the FMU (a Python FMU turns it into its own error); the run was stopped, not failed
+                raise Interrupted(signum, result) from exc
+            if isinstance(exc, SimulationError):
+                exc.result = result
             raise
         return result, system
 
 
-def _difference(a: Result, b: Result) -> float:
-    """max over the recorded variables of max_t |a - b| / max_t |b| (the rows of two solves on one grid)."""
-    A, B = np.array(a.rows)[:, 1:], np.array(b.rows)[:, 1:]
-    if A.shape != B.shape:
-        raise SimulationError("Model Exchange: two solves recorded different grids")
-    scale = np.max(np.abs(B), axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rel = np.where(scale > 0, np.max(np.abs(A - B), axis=0) / scale, 0.0)
-    return float(np.max(rel, initial=0.0))
+class _Tapped(Result):
+    """A Result that also hands each row (time first) to `tap`."""
+
+    def __init__(self, columns: list[str], sink: ResultFile | None, tap: Callable[[list[float]], None],
+                 notes: list[str] | None = None):
+        super().__init__(columns, sink=sink, notes=notes)
+        self.tap = tap
+
+    def append(self, t: float, values: list) -> None:
+        super().append(t, values)
+        self.tap([t, *values])
+
+
+class _Tape:
+    """The rows of one solve as doubles in an anonymous temporary file (gone with the process, even after
+    kill -9), read back in order: a run with a tolerance holds no solve's rows in memory (8 bytes per value
+    on the disk of $TMPDIR instead). A file that cannot be written (a full disk) ends the run with a
+    SimulationError saying so."""
+
+    def __init__(self) -> None:
+        self.rows, self.width = 0, 0
+        try:
+            self.file = tempfile.TemporaryFile()
+        except OSError as exc:
+            raise self._failure(exc) from None
+
+    @staticmethod
+    def _failure(exc: OSError) -> SimulationError:
+        return SimulationError(f"Model Exchange: cannot keep the first solve's rows for the error estimate in a "
+                               f"temporary file in {tempfile.gettempdir()}: {exc.strerror or exc}")
+
+    def write(self, row: list[float]) -> None:
+        self.width = len(row)
+        try:
+            self.file.write(np.asarray(row, dtype=float).tobytes())
+        except OSError as exc:
+            raise self._failure(exc) from None
+        self.rows += 1
+
+    def rewind(self) -> None:
+        try:
+            self.file.seek(0)                      # flushes the buffered rows
+        except OSError as exc:
+            raise self._failure(exc) from None
+
+    def read(self) -> np.ndarray | None:
+        """The next row, or None after the last."""
+        data = self.file.read(8 * self.width)
+        return np.frombuffer(data, dtype=float) if self.width and len(data) == 8 * self.width else None
+
+    def __enter__(self) -> "_Tape":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.file.close()
+
+
+class _Difference:
+    """max over the recorded variables of max_t |a - b| / max_t |b|, for two solves on one grid: a's rows
+    from its tape, b's as its solve records them (`add`)."""
+
+    def __init__(self, tape: _Tape):
+        self.tape = tape
+        tape.rewind()
+        self.rows = 0
+        self.largest: np.ndarray | None = None        # max_t |a - b| of each variable
+        self.scale: np.ndarray | None = None          # max_t |b|
+
+    def add(self, row: list[float]) -> None:
+        a, b = self.tape.read(), np.asarray(row, dtype=float)
+        if a is None or a.shape != b.shape or a[0] != b[0]:
+            raise SimulationError(f"Model Exchange: two solves recorded different grids (at t = {b[0]:.9g} s)")
+        if self.largest is None or self.scale is None:
+            self.largest, self.scale = np.zeros(b.size - 1), np.zeros(b.size - 1)
+        np.maximum(self.largest, np.abs(a[1:] - b[1:]), out=self.largest)
+        np.maximum(self.scale, np.abs(b[1:]), out=self.scale)
+        self.rows += 1
+
+    def value(self) -> float:
+        if self.rows != self.tape.rows:
+            raise SimulationError("Model Exchange: two solves recorded different grids")
+        if self.largest is None or self.scale is None:
+            return 0.0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = np.where(self.scale > 0, self.largest / self.scale, 0.0)
+        return float(np.max(rel, initial=0.0))
 
 
 def initialize(system: System, parameters, planned: Experiment, rtol: float) -> float | None:
@@ -239,11 +367,23 @@ def initialize(system: System, parameters, planned: Experiment, rtol: float) -> 
     return next_event
 
 
+class _Grid:
+    """The recording grid t0 + k h (k < n), then t_stop (k = n): computed point by point, never held."""
+
+    def __init__(self, t0: float, t_stop: float, h: float):
+        self.t0, self.t_stop, self.h = t0, t_stop, h
+        self.n = max(1, math.ceil((t_stop - t0) / h - 1e-9))
+        self.size = self.n + 1
+
+    def __getitem__(self, k: int) -> float:
+        return self.t0 + k * self.h if k < self.n else self.t_stop
+
+
 def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
-               progress, solver_steps: bool, next_event: float | None = None) -> None:
+               progress, solver_steps: bool, next_event: float | None = None, limit: float = MAX_STEPS) -> None:
     t0, t_stop, h = planned.start_time, planned.stop_time, planned.step_size
-    n_rows = max(1, math.ceil((t_stop - t0) / h - 1e-9))
-    grid = [t0 + k * h for k in range(n_rows)] + [t_stop]
+    grid = _Grid(t0, t_stop, h)
+    n_rows = grid.n
     t = t0
     xi = system.states() / system.scale
     system.set_point(t, xi, record=True)
@@ -263,6 +403,11 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
                 raise SimulationError(f"Model Exchange: {type(solver).__name__} failed at t = {solver.t:.9g} s: "
                                       f"{message}{system.discarded}")
             system.statistics.steps += 1
+            if system.statistics.steps > limit:
+                raise RunLimit("Model Exchange: {solver} at rtol {rtol:g} took more than {limit:.3g} steps and reached "
+                               "t = {t:.9g} s of {t_stop:g} s; give a larger {max_steps} to let it go on", "max_steps",
+                               solver=type(solver).__name__, rtol=rtol, limit=limit, t=solver.t, t_stop=t_stop)
+            stopping.check()                                    # besides every evaluation (ode.System.set_point)
             t_new, x_new = solver.t, solver.y
             event_at = None
             if z is not None:
@@ -305,7 +450,7 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
             changed, next_event = system.event(t)
             if changed:
                 xi = system.states() / system.scale
-    if not solver_steps and k < len(grid):                      # the stop time's row, after an event there
+    if not solver_steps and k < grid.size:                      # the stop time's row, after an event there
         system.set_point(t, xi, record=True)
         result.append(t, system.row())
     if progress is not None:
@@ -345,7 +490,7 @@ def _locate(system: System, dense, t_a: float, t_b: float, i: int) -> float:
     return t
 
 
-def _record(system: System, result: Result, dense, grid: list[float], k: int, t_end: float, solver_steps: bool,
+def _record(system: System, result: Result, dense, grid: _Grid, k: int, t_end: float, solver_steps: bool,
             x_end: np.ndarray, before_event: bool = False) -> int:
     """The rows up to t_end: the grid points (from the dense output), or the step's end (solver_steps).
     before_event: an event follows at t_end, so a grid point at t_end waits for the values after it (as a
@@ -357,13 +502,13 @@ def _record(system: System, result: Result, dense, grid: list[float], k: int, t_
         system.engine_time += time.perf_counter() - tic
 
 
-def _rows(system: System, result: Result, dense, grid: list[float], k: int, t_end: float, solver_steps: bool,
+def _rows(system: System, result: Result, dense, grid: _Grid, k: int, t_end: float, solver_steps: bool,
           x_end: np.ndarray, before_event: bool) -> int:
     if solver_steps:
         system.set_point(t_end, x_end, record=True)
         result.append(t_end, system.row())
         return k
-    while k < len(grid) and (grid[k] < t_end or grid[k] == t_end and not before_event):
+    while k < grid.size and (grid[k] < t_end or grid[k] == t_end and not before_event):
         tk = grid[k]
         x = x_end if tk >= t_end else dense(tk)
         system.set_point(tk, x, record=True)

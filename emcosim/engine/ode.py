@@ -15,6 +15,10 @@ connected inputs), one fmi2GetDirectionalDerivative per known, then the outputs 
 dy/dx = dy/dx_own + dy/du du/dx with du/dx = factor dy_source/dx along each connection. Otherwise the
 solver takes finite differences. Events: `indicators`, `event` (fmi2EnterEventMode, fmi2NewDiscreteStates
 until none asks for more, fmi2EnterContinuousTimeMode) and `completed_step`.
+
+Stopping: every evaluation (right-hand side, Jacobian, event indicators, a recorded row) sets the point
+first (`set_point`), and that is where a Ctrl-C or SIGTERM stops the run (`stopping.check` raises
+`Interrupted`): between two FMU calls, however long a solver step takes; so does every round of an event.
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from . import stopping
 from .errors import SimulationError
 from .fmi import STATUS, FMICallException, fmi2EventInfo
 from .instances import Instance, last_message
@@ -126,7 +131,9 @@ class System:
         return status
 
     def set_point(self, t: float, xi: np.ndarray, record: bool = False) -> None:
-        """The FMUs at time t and scaled state xi, their connected values resolved (and the recorded ones)."""
+        """The FMUs at time t and scaled state xi, their connected values resolved (and the recorded ones).
+        A stop asked for by a signal ends the run here (module docstring)."""
+        stopping.check()
         if t != self.time:
             self.time = t
             for unit in self.units:
@@ -252,6 +259,7 @@ class System:
         info = fmi2EventInfo()
         changed, next_time = False, None
         for _ in range(MAX_EVENT_ITERATIONS):
+            stopping.check()
             again = False
             next_time = None
             for unit in self.units:

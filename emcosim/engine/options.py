@@ -15,6 +15,11 @@ MAX_COUPLING_ORDER = 3     # the highest derivative order the master passes on a
 COUPLINGS = ("explicit", "implicit")
 INTERFACE_TYPES = ("CoSimulation", "ModelExchange")     # fmpy's spelling (fmpy simulate --interface-type)
 SOLVERS = ("LSODA", "BDF", "Radau")                      # scipy's, for Model Exchange runs
+# the smallest solver rtol of a Model Exchange run (its atol is rtol times each state's nominal): scipy's
+# solvers raise an rtol below 100 eps (2.2e-14) to that but keep the atol, and at atol 1e-300 they never
+# leave the start time (issue 31)
+MIN_RTOL = 1e-13
+ME_SOLVES = 100            # a Model Exchange run with a tolerance solves down to tolerance / ME_SOLVES
 
 
 @dataclass(frozen=True)
@@ -27,10 +32,12 @@ class RunOptions:
     max_step                 the largest step [s] a tolerance may choose
     coupling                 "explicit" or "implicit" (Co-Simulation)
     coupling_order           derivatives passed on the connections, 0..MAX_COUPLING_ORDER (explicit coupling)
-    max_steps                refuse a run of more communication steps (a step of 1e-15 s would run for years)
+    max_steps                refuse a run of more communication steps (a step of 1e-15 s would run for years);
+                             a Model Exchange run: more rows on its grid, and more steps of any of its solves
     interface_type           "CoSimulation" (the master steps the FMUs) or "ModelExchange" (one ODE of all
                              the FMUs' states, integrated by scipy)
-    rtol                     a Model Exchange run: one solve at the solver's relative tolerance rtol (default 1e-6;
+    rtol                     a Model Exchange run: one solve at the solver's relative tolerance rtol (default 1e-6,
+                             at least MIN_RTOL;
                              with a tolerance instead, the solves keep that global error: model_exchange.py)
     solver                   the scipy solver of a Model Exchange run (default LSODA)
     solver_steps             a Model Exchange run records a row at every step its solver takes (default: on
@@ -117,6 +124,10 @@ def check(options: RunOptions) -> None:
     if options.rtol is not None:
         if not (isinstance(options.rtol, (int, float)) and math.isfinite(options.rtol) and 0 < options.rtol < 1):
             raise OptionError("{rtol} {value}: must be a number between 0 and 1", "rtol", value=_shown(options.rtol))
+        if options.rtol < MIN_RTOL:
+            raise OptionError("{rtol} {value}: below %g, the smallest relative tolerance the solvers resolve in "
+                              "double precision (a smaller one never leaves the start time)" % MIN_RTOL, "rtol",
+                              value=_shown(options.rtol))
         if not options.model_exchange:
             raise OptionError("{rtol} is the solver's tolerance of a Model Exchange run; give {interface_type} "
                               "ModelExchange (a Co-Simulation run takes {tolerance})", "rtol", "interface_type",
@@ -127,6 +138,12 @@ def check(options: RunOptions) -> None:
     if options.solver_steps and not options.model_exchange:
         raise OptionError("{solver_steps}: a Co-Simulation run records at its communication points; give "
                           "{interface_type} ModelExchange", "solver_steps", "interface_type")
+    # (1 - 1e-9): 1e-11 itself passes, 100 * 1e-13 rounds to 1.0000000000000001e-11
+    if options.model_exchange and options.tolerance is not None and options.tolerance < ME_SOLVES * MIN_RTOL * (1 - 1e-9):
+        raise OptionError("{tolerance} {value}: a Model Exchange run cannot keep a global error below %g (its "
+                          "solves run at {tolerance}/%d, and the solvers at a relative tolerance of %g or more); give "
+                          "a larger {tolerance}" % (ME_SOLVES * MIN_RTOL, ME_SOLVES, MIN_RTOL), "tolerance",
+                          value=_shown(options.tolerance))
     if options.model_exchange:
         for name in ("coupling", "coupling_order", "max_step"):
             if getattr(options, name) is not None:
@@ -172,9 +189,12 @@ def experiment(scenario, options: RunOptions) -> Experiment:
     if h < 4 * math.ulp(edge):
         raise OptionError("{where}: step size {h:g} s is below the resolution of time near t = {edge:g} s (double "
                           "precision: {ulp:.3g} s)", "step_size", where=where, h=h, edge=edge, ulp=math.ulp(edge))
-    if steps > options.max_steps and not options.model_exchange:
-        raise LimitError("{where}: stop time {t_stop:g} s with step size {h:g} s makes {steps:.3g} communication "
-                         "steps, more than the limit of {limit:.3g}; give {max_steps} {needed} to run it anyway",
+    # a Model Exchange run records a row at each grid point t0 + n h (with solver_steps: at each solver step,
+    # counted as it runs: model_exchange.py)
+    if steps > options.max_steps and not (options.model_exchange and options.solver_steps):
+        raise LimitError("{where}: stop time {t_stop:g} s with step size {h:g} s makes {steps:.3g} {what}, more "
+                         "than the limit of {limit:.3g}; give {max_steps} {needed} to run it anyway",
                          "max_steps", where=where, t_stop=t_stop, h=h, steps=steps, limit=options.max_steps,
-                         needed=math.ceil(steps))
+                         needed=math.ceil(steps), what="recorded rows (communication points)" if options.model_exchange
+                         else "communication steps")
     return Experiment(t0, t_stop, h, max_step)

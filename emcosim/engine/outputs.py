@@ -41,7 +41,7 @@ import signal
 import stat
 import time
 from pathlib import Path
-from typing import BinaryIO, Callable
+from typing import BinaryIO, Callable, Sequence
 
 from .errors import ScenarioError, SimulationError
 from .files import (
@@ -95,14 +95,16 @@ def write_file(dest: str | Path, write: Callable[[BinaryIO], None], partial: boo
         os.close(fd)
 
 
-def write_csv(path: str | Path, header: list[str], rows, note: str | None = None) -> None:
-    """A CSV of rows (exact numbers, repr), written by `write_file`."""
+def write_csv(path: str | Path, header: list[str], rows, note: str | None = None, notes: Sequence[str] = ()) -> None:
+    """A CSV of rows (exact numbers, repr), written by `write_file`; `note` a first comment line, `notes`
+    comment lines "# emcosim: note: ..." before the header (`note_lines`)."""
     path = Path(path)
 
     def write(f: BinaryIO) -> None:
         text = io.TextIOWrapper(f, encoding="utf-8", newline="")
         if note:
             text.write(f"# {one_line(note)}\n")
+        text.write(note_lines(notes))
         w = csv.writer(text)
         w.writerow(header)
         w.writerows([[repr(float(v)) for v in row] for row in rows])
@@ -112,6 +114,12 @@ def write_csv(path: str | Path, header: list[str], rows, note: str | None = None
         write_file(path, write)
     except OSError as exc:
         raise ScenarioError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+def note_lines(notes: Sequence[str]) -> str:
+    """Comment lines at the top of a results file, one per note (what the run must say beside its rows,
+    e.g. binding.model_differences); readers skip lines starting with '#' (results.read_csv)."""
+    return "".join(f"# emcosim: note: {one_line(n)}\n" for n in notes)
 
 
 # ---- a results file written while the run goes ---------------------------------------------------
@@ -154,8 +162,9 @@ class ResultFile:
         self.final: Path | None = None
 
     # the sink protocol of Result
-    def start(self, columns: list[str]) -> None:
-        self.buffer.append(",".join(["time", *columns]) + "\n")
+    def start(self, columns: list[str], notes: Sequence[str] = ()) -> None:
+        """The header: the notes of the run (`note_lines`), then the columns' names (one buffered item)."""
+        self.buffer.append(note_lines(notes) + ",".join(["time", *columns]) + "\n")
 
     def write(self, row: list) -> None:
         line = ",".join([repr(float(v)) for v in row]) + "\n"

@@ -24,10 +24,13 @@ class Result:
     written to it and only the last row is kept (`last`); `time` and `result[name]` then refuse,
     naming the file to read instead."""
 
-    def __init__(self, columns: list[str], sink: "ResultFile | None" = None):
+    def __init__(self, columns: list[str], sink: "ResultFile | None" = None, notes: list[str] | None = None):
         self.columns = list(columns)
         self.rows: list[list[float]] = []
-        self.warnings: list[str] = []          # the FMUs' warnings at initialization ("component: message")
+        # what the results must say beside their rows (binding.model_differences): comment lines at the top of
+        # the results file, and warnings
+        self.notes: list[str] = list(notes or [])
+        self.warnings: list[str] = list(self.notes)   # and the FMUs' warnings at initialization ("component: message")
         self.sink = sink
         self.last: list[float] | None = None   # the last row recorded
         self.n_rows = 0
@@ -38,7 +41,7 @@ class Result:
         self.model_exchange: Any = None        # model_exchange.Statistics of a Model Exchange run
         self.units: dict[str, str] = {}        # unit of each column ('' for none), where the caller knows them
         if sink is not None:
-            sink.start(self.columns)
+            sink.start(self.columns, self.notes)
 
     def append(self, t: float, values: list) -> None:
         stopping.check()                       # Ctrl-C / SIGTERM: stop here, between FMU calls
@@ -95,8 +98,8 @@ class Result:
         return result
 
     def write_csv(self, path: str | Path, note: str | None = None) -> None:
-        """Write the rows in memory to `path` (atomically); `note` becomes a first comment line."""
-        write_csv(path, ["time", *self.columns], self._in_memory(), note)
+        """Write the rows in memory to `path` (atomically); `note` and the result's notes become comment lines."""
+        write_csv(path, ["time", *self.columns], self._in_memory(), note, self.notes)
 
 
 def read_csv(path: str | Path) -> dict[str, np.ndarray]:

@@ -7,8 +7,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {                     # package or module -> layer (an import may only go to a lower or the same layer)
     "components": 0, "fmus": 1, "emcosim.engine": 2, "emcosim.progress": 2, "emcosim.locations": 3,
@@ -49,16 +47,16 @@ FILES = sorted(p for d in ("components", "fmus", "emcosim") for p in (ROOT / d).
                if "__pycache__" not in p.parts)
 
 
-@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(ROOT)))
-def test_imports_go_down_the_layers(path):
-    own = layer(module_name(path))
-    assert own is not None, path
+def test_imports_go_down_the_layers():
     up = []
-    for line, target in imports(path):
-        other = layer(target)
-        if other is not None and other[1] > own[1]:
-            up.append(f"line {line}: {target} (layer {other[0]}) from layer {own[0]}")
-    assert not up, up
+    for path in FILES:
+        own = layer(module_name(path))
+        assert own is not None, path
+        for line, target in imports(path):
+            other = layer(target)
+            if other is not None and other[1] > own[1]:
+                up.append(f"{path.relative_to(ROOT)}:{line}: {target} (layer {other[0]}) from layer {own[0]}")
+    assert not up, "\n".join(up)
 
 
 def test_the_layers_cover_the_packages():

@@ -41,7 +41,7 @@ def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_t
         started = time.perf_counter()
         warm = [{"controller.D_d": 0.0}] * (2 * workers)
         while True:                                  # until every worker has made a run
-            done = run_all(client, ssd, fmu_dir, warm, stop_time, None, stream=None)
+            done = run_all(client, ssd, fmu_dir, warm, stream=None, stop_time=stop_time)
             assert all(r["status"] == "ok" for r in done), done
             if _workers_with_sessions(client) >= workers:
                 break
@@ -49,7 +49,7 @@ def throughput(ssd: str, fmu_dir: str, workers: int, values: list[float], stop_t
         runs = [{"controller.D_d": float(v)} for v in values]
         cpu0 = client.run(time.process_time)
         t0 = time.perf_counter()
-        rows = run_all(client, ssd, fmu_dir, runs, stop_time, None, stream=None)
+        rows = run_all(client, ssd, fmu_dir, runs, stream=None, stop_time=stop_time)
         elapsed = time.perf_counter() - t0
         cpu1 = client.run(time.process_time)
         close_on_workers(client)

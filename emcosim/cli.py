@@ -16,7 +16,6 @@ NAME.partial.csv or NAME.partial/, never a half-written NAME.csv).
 from __future__ import annotations
 
 import argparse
-import difflib
 import re
 import shutil
 import sys
@@ -30,12 +29,6 @@ FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "-
          "start_values": "--set", "max_bytes": "--ssp-max-size", "max_files": "--ssp-max-files",
          "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver",
          "solver_steps": "--solver-steps", "rtol": "--rtol", "max_runs": "--max-runs"}
-
-
-def scenario_dirs() -> list[Path]:
-    """Where bare scenario names are looked up: ./scenarios, then the project's scenarios/."""
-    dirs = [Path.cwd() / "scenarios", Path(__file__).resolve().parents[1] / "scenarios"]
-    return [d for d in dict.fromkeys(dirs) if d.is_dir()]
 
 
 NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius", "--rtol")
@@ -211,7 +204,7 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--samples", type=int, default=0, help="random draws per grid point (same draws for every point)")
     sw.add_argument("--seed", type=int, default=0, help="seed of the random draws (default 0)")
     sw.add_argument("--max-runs", type=int, default=None, metavar="N",
-                    help="run a sweep of up to N runs (default: refused above 100000, emcosim.paper.sweep.MAX_RUNS)")
+                    help="run a sweep of up to N runs (default: refused above 100000, emcosim.sweeps.MAX_RUNS)")
     sw.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
     sw.add_argument("--scheduler", metavar="tls://HOST:PORT", help="use this running dask scheduler instead of a local cluster "
                                                                   "(the local cluster uses TLS with temporary credentials)")
@@ -230,6 +223,10 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--coupling-order", type=int, choices=range(0, 4), metavar="K",
                     help="highest derivative handed along a connection in every run, as `run --coupling-order` "
                          "[0..3] (explicit coupling only)")
+    sw.add_argument("--interface-type", choices=("CoSimulation", "ModelExchange"), default="CoSimulation",
+                    help="as `run --interface-type`: ModelExchange runs every point as one ODE of the FMUs' states")
+    sw.add_argument("--rtol", type=float, help="the solver's relative tolerance of ModelExchange runs, as `run --rtol`")
+    sw.add_argument("--solver", choices=("LSODA", "BDF", "Radau"), help="scipy's integrator of ModelExchange runs")
     sw.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     sw.add_argument("--no-plots", action="store_true", help="write the table only")
     sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
@@ -266,41 +263,14 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
-def scenario_names() -> list[str]:
-    """The bare scenario names found in scenario_dirs()."""
-    from .engine.ssd import SSD_NAME
-    return sorted({d.name for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file()})
-
-
 def _resolve(name: str, limits=None) -> Path:
-    """The .ssd of a scenario (see engine.ssd.resolve_path); a bare name that matches no scenario
-    gets the closest names suggested."""
-    from .engine.ssd import resolve_path
-    try:
-        return resolve_path(name, scenario_dirs(), limits)
-    except ScenarioError:
-        if len(Path(name).parts) == 1 and not Path(name).exists():
-            close = difflib.get_close_matches(name, scenario_names(), n=3, cutoff=0.6)
-            if close:
-                raise ScenarioError(f"{name}: no such scenario; did you mean {' or '.join(close)}? "
-                                    "(`emcosim info` lists them)") from None
-        raise
+    from .api import find_scenario
+    return find_scenario(name, limits)
 
 
 def _read(name: str, fmu_dir: str | None = None, args=None):
-    from .engine.ssd import read_scenario
-    limits = None if args is None else _limits(args)
-    return read_scenario(_resolve(name, limits), fmu_dir=fmu_dir, limits=limits)
-
-
-def default_record(scenario) -> list[str] | None:
-    """Every output connector and every input that no connection feeds (in component order): each
-    connected value once. An input fed through a linear transformation differs from its source and
-    is recorded too. None (the master's default) for a scenario without such connectors."""
-    fed = {c.end for c in scenario.connections if c.factor == 1.0 and c.offset == 0.0}
-    names = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
-             if k.kind == "output" or (k.kind == "input" and f"{c.name}.{k.name}" not in fed)]
-    return names or None
+    from .api import load_scenario
+    return load_scenario(name, fmu_dir, None if args is None else _limits(args))
 
 
 def run_options(args):
@@ -317,9 +287,7 @@ def run_options(args):
 
 
 def cmd_run(args) -> int:
-    from dataclasses import asdict
-
-    from .engine.master import simulate
+    from .api import run
     from .engine.outputs import ResultFile
     from .progress import ProgressBar
 
@@ -331,7 +299,7 @@ def cmd_run(args) -> int:
         if not sep or "." not in name:
             raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
         start_values[name.strip()] = value.strip()
-    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else default_record(scenario)
+    record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else None
     output = Path(args.output or f"{scenario.name}.csv")
     if args.plot:
         check_plot(Path(args.plot), output)
@@ -342,8 +310,7 @@ def cmd_run(args) -> int:
     result = failure = None
     try:
         with sink:
-            result = simulate(scenario, start_values=start_values, record=record, progress=bar, sink=sink,
-                              **asdict(options))
+            result = run(scenario, options, start_values=start_values, record=record, progress=bar, sink=sink)
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
@@ -413,16 +380,12 @@ def plot_run(scenario, rows: Path, path: str, start_values: dict, partial: bool 
     file's metadata with the partial file's comment. Returns the file written."""
     import matplotlib.pyplot as plt
 
+    from .api import figure
     from .engine import plotting
     from .engine.outputs import write_file
     from .engine.results import Result, partial_note
-    from .paper.run_figure import run_figure
 
-    result = Result.from_csv(rows)
-    spec = run_figure(scenario, result, start_values)
-    if spec is None:
-        spec = plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
-    fig = plotting.draw(spec)
+    fig = plotting.draw(figure(scenario, Result.from_csv(rows), start_values))
     fmt = Path(path).suffix[1:].lower()
     metadata = None
     if partial:
@@ -501,6 +464,8 @@ def cmd_info(args) -> int:
     if args.scenario:
         paths = args.scenario
     else:
+        from .api import scenario_dirs
+
         paths = sorted(str(d) for base in scenario_dirs() for d in base.iterdir() if (d / SSD_NAME).is_file())
         if not paths:
             raise ScenarioError("no scenarios found (looked in ./scenarios and the project's scenarios/)")
@@ -520,7 +485,7 @@ def cmd_info(args) -> int:
     print("FMUs:")
     for source in fmus:
         if not source.is_file():
-            print(f"  {source}: not built (run build.py)")
+            print(f"  {source}: not built (`emcosim reproduce` or `python -m fmus.build` builds the paper's FMUs)")
             continue
         md = read_model_description(str(source), validate=False)
         print(f"  {source.name}: {md.modelName}, FMI {md.fmiVersion}" + (f" - {md.description}" if md.description else ""))
@@ -536,7 +501,7 @@ def cmd_reproduce(args) -> int:
     from .paper.reproduce import ensure_fmus, reproduce
 
     if args.fmu_dir is None:
-        ensure_fmus()
+        ensure_fmus()                              # into emcosim.paper_fmu_dir(), where the scenarios look
     reproduce(args.out, stop_time=args.stop_time, fmu_dir=args.fmu_dir, jobs=args.jobs)
     return 0
 
@@ -552,14 +517,14 @@ def _radius(text: str) -> float:
 
 
 def cmd_certify(args) -> int:
+    from .api import certify
     from .engine.outputs import check_destination, write_file
-    from .paper.certify import certify_scenario
 
     if args.json:
         check_destination(Path(args.json))        # before the certificate is computed: no link, a writable place
     path = _resolve(args.scenario, _limits(args))
     try:
-        cert = certify_scenario(path, radius=args.radius, include_start=args.include_start)
+        cert = certify(path, radius=args.radius, include_start=args.include_start)
     except ValueError as exc:                       # an invalid design: a parameter the paper's conditions refuse
         raise ScenarioError(f"{path}: {exc}") from None
     print(cert.report())
@@ -582,7 +547,7 @@ def cmd_sweep(args) -> int:
     grid = [parse_grid(g, max_runs) for g in args.grid]
     samples = [parse_sample(s) for s in args.sample]
     points(grid, samples, args.samples, args.seed, max_runs)       # its size, before anything is read
-    run_options(args)                             # checked as run's
+    options = run_options(args)                   # checked as run's
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
     scenario = _read(args.scenario, args.fmu_dir, args)
@@ -594,15 +559,15 @@ def cmd_sweep(args) -> int:
     stream = RowStream(folder.path / "sweep.csv", [n for n, _ in grid] + [n for n, _, _ in samples])
     try:
         try:
-            rows, info = sweep(scenario, grid, samples, args.samples, args.seed, stop_time=args.stop_time,
-                               step_size=args.step_size, workers=args.workers, scheduler=args.scheduler,
-                               stream=None if args.no_progress else sys.stderr, security=tls, on_row=stream,
-                               tolerance=args.tolerance, coupling=args.coupling, coupling_order=args.coupling_order,
-                               max_runs=max_runs)
+            rows, info = sweep(scenario, grid, samples, args.samples, args.seed, options, workers=args.workers,
+                               scheduler=args.scheduler, stream=None if args.no_progress else sys.stderr,
+                               security=tls, on_row=stream, max_runs=max_runs)
         finally:
             stream.close()
         files = write_table(rows, folder.path, info)
         if not args.no_plots:
+            if not args.no_progress:
+                print("sweep: drawing the plots ...", file=sys.stderr, flush=True)
             horizon = args.stop_time if args.stop_time is not None else scenario.stop_time
             files += plot(rows, dict(grid), info["units"], folder.path, title=f"{scenario.name}, horizon {horizon:g} s",
                           horizon=horizon)

@@ -56,6 +56,7 @@ PYTHONFMU_LIBRARY = "libpythonfmu-export.so"   # the name the loader looks for b
 # its lock around starting Python (fmus/emcosim_fmu_loader.c, "state of the process")
 LOADER_SONAME = "libemcosim_fmu_loader.so.1"
 OVERRIDE_VARIABLE = "EMCOSIM_FMU_PYTHON"
+DESCRIPTION_RESOURCE = "resources/emcosim_description.toml"   # a device FMU's description file
 
 FMUS = list(MODELS)                             # the model identifiers of the suite's FMUs
 IMPORT_ROOTS = ("components", "fmus", "pythonfmu")  # packages that the bundle holds under its own name
@@ -455,18 +456,23 @@ def build_description(description: Path | str, dest: Path | str, designs: Sequen
                       temp_root: Path | None = None) -> dict[str, Path]:
     """The FMUs of a plant description file (TOML, issue 25): components.codegen writes its model module
     (`<stem>_model.py`, in a temporary folder), then `build_device` builds the plant and a
-    controller per design of `designs` (None: those the generated device() gives), with the description
-    file in resources/ (temp_root: as build_device's). A DescriptionError (components.description) names a
-    wrong entry; nothing is built."""
-    from components import codegen  # sympy: imported only when a description is built
+    controller per design of `designs` (None: the designs whose Assumptions hold, components.plant_check),
+    with the description file in resources/ as DESCRIPTION_RESOURCE (where emcosim.devices.registry finds the
+    device of an FMU; temp_root: as build_device's). A DescriptionError (components.description) names a wrong
+    entry; nothing is built."""
+    from components import codegen, plant_check  # sympy: imported only when a description is built
     from components.description import load
 
     description = Path(description).resolve()
     desc = load(description)
+    if designs is None:
+        designs = plant_check.check(desc).designs
     with tempfile.TemporaryDirectory(prefix="emcosim_description_", dir=temp_root) as tmp:
         module = Path(tmp) / f"{description.stem.lower()}_model.py"
         module.write_text(codegen.module_source(desc, description.name))
-        return build_device(module, desc.name, designs, dest, description=description, temp_root=temp_root)
+        resource = Path(tmp) / Path(DESCRIPTION_RESOURCE).name
+        shutil.copyfile(description, resource)
+        return build_device(module, desc.name, designs, dest, description=resource, temp_root=temp_root)
 
 
 def up_to_date(dest: Path | str | None = None, current: str | None = None) -> bool:

@@ -87,3 +87,12 @@ def references():
             cache[key] = monolithic(s, stop_time=t_end, n_samples=n_samples)
         return cache[key]
     return get
+
+
+@pytest.hookimpl(tryfirst=True)                    # before -m deselects
+def pytest_collection_modifyitems(config, items):
+    """The reliability suite runs in the full set only: its tests are `slow` too, so that the quick set
+    (`-m "not slow"`) leaves its subprocesses out (issue 33)."""
+    for item in items:
+        if item.get_closest_marker("reliability") is not None and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.slow)

@@ -298,10 +298,12 @@ def test_connection_units_are_converted(tmp_path, toys, suppress):
     """ctrl.x in mm = 1000 plant.x in m; with k = -1e-3 per mm the loop is x' = -x: x_n = 0.99^n.
     suppressUnitConversion="true" passes the number as it is (SSP)."""
     loop = loop_with_connector_units(toy_loop(tmp_path / "units", toys, k=-1e-3), suppress)
-    r = master.simulate(read_scenario(loop))
+    r = master.simulate(read_scenario(loop), record=["plant.x", "ctrl.x"])
     scale = 1.0 if suppress else 1000.0
     np.testing.assert_allclose(r["ctrl.x"], scale * r["plant.x"], rtol=1e-15)
     np.testing.assert_allclose(r["plant.x"], (1 - 1e-5 * scale) ** np.arange(101), rtol=1e-12)
+    # by default a converted input differs from its source and is recorded; a suppressed one is its source's value
+    assert ("ctrl.x" in master.simulate(read_scenario(loop)).columns) == (not suppress)
 
 
 def test_set_on_a_connected_input_is_refused(loop, tmp_path, capsys):

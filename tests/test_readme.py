@@ -70,3 +70,26 @@ def test_every_readme_command_runs_in_a_fresh_venv(tmp_path):
     claims = json.loads((repo / "results" / "claims.json").read_text())
     assert claims["banner"] is None and len(claims["claims"]) == 14
     assert len((repo / "loop.csv").read_text().splitlines()) > 100
+
+
+def test_gitignore_covers_what_the_readme_writes():
+    """git status stays clean after the README's commands (issue 33): every file or folder they name as an
+    output (-o, --output, --out, --plot, --output-file, a run's default NAME.csv) is ignored by git."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("needs a git checkout")
+    written = set()
+    for command in readme_commands((ROOT / "README.md").read_text()):
+        for part in command.split("&&"):
+            words = part.split()
+            for flag, value in zip(words, words[1:]):
+                if flag in ("-o", "--output", "--out", "--plot", "--output-file", "--json"):
+                    written.add(value)
+            if words[:2] == [".venv/bin/emcosim", "run"] and not {"-o", "--output"} & set(words):
+                written.add(Path(words[2]).name + ".csv")
+            if words[:2] == [".venv/bin/emcosim", "sweep"] and "--out" not in words:
+                written.add(f"sweep_{words[2]}/")
+    assert {"results", "r.csv", "r.png", "loop.fmu", "my_scenario"} <= {w.rstrip("/") for w in written}
+    for name in sorted(written):
+        path = name.rstrip("/") + ("/x" if name.endswith("/") or "." not in Path(name).name else "")
+        check = subprocess.run(["git", "check-ignore", "-q", "--no-index", path], cwd=ROOT)
+        assert check.returncode == 0, f"{name}: written by the README's commands, not ignored by .gitignore"

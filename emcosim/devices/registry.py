@@ -10,8 +10,7 @@ from pathlib import Path
 
 from components import catalog
 from components.device import Device
-
-DESCRIPTION_RESOURCE = "resources/emcosim_description.toml"   # where `emcosim plant build` puts the file in an FMU
+from fmus.build import DESCRIPTION_RESOURCE  # noqa: F401 - where `emcosim plant build` puts the file in an FMU
 
 
 def load(path: str | Path, q_d=None, reference=None, horizon: float | None = None):

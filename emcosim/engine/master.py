@@ -39,7 +39,7 @@ from .fmi import FMICallException
 from .fmustate import States
 from .instances import Instance, last_message
 from .model_exchange import simulate_model_exchange
-from .options import MAX_STEPS, Experiment, RunOptions, experiment
+from .options import Experiment, RunOptions, experiment, options_of
 from .outputs import ResultFile
 from .plan import Plan, make_plan, n_slots
 from .results import Result
@@ -50,15 +50,15 @@ from .stepper import Stepper
 INTERNAL_TOLERANCE = 0.01               # error-controlled runs: the FMUs' integrators get this times the tolerance
 
 
-def simulate(scenario: Scenario, stop_time: float | None = None, step_size: float | None = None,
+def simulate(scenario: Scenario, options: RunOptions | None = None,
              start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
-             progress: Callable[[float], None] | None = None, tolerance: float | None = None,
-             timing: dict | None = None, coupling_order: int | None = None,
-             max_step: float | None = None, sink: ResultFile | None = None,
-             max_steps: float = MAX_STEPS, coupling: str | None = None,
-             interface_type: str = "CoSimulation", rtol: float | None = None, solver: str | None = None,
-             solver_steps: bool = False) -> Result:
+             progress: Callable[[float], None] | None = None, timing: dict | None = None,
+             sink: ResultFile | None = None, **settings) -> Result:
     """Run `scenario` once and return the recorded values at every communication point.
+
+    options: the run's settings, one RunOptions (options.py; None: the scenario's choices); `settings` are
+    shorthands for its fields (simulate(s, stop_time=1.0) is simulate(s, RunOptions(stop_time=1.0))), each
+    described below.
 
     start_values: "component.variable" -> value (text or number), overriding the .ssv values.
     record: full variable names to record; default: every connector of the scenario.
@@ -94,9 +94,7 @@ def simulate(scenario: Scenario, stop_time: float | None = None, step_size: floa
     (with `.result`, the values recorded so far) for an FMU that fails during the run (or a value that is
     not finite), `errors.Interrupted` when stopped by a signal (see `stopping`).
     """
-    options = RunOptions(stop_time=stop_time, step_size=step_size, tolerance=tolerance, max_step=max_step,
-                         coupling=coupling, coupling_order=coupling_order, max_steps=max_steps,
-                         interface_type=interface_type, rtol=rtol, solver=solver, solver_steps=solver_steps)
+    options = options_of(options, **settings)
     planned = experiment(scenario, options)                 # refuse a bad horizon before loading
     if options.model_exchange:
         return simulate_model_exchange(scenario, options, planned, start_values=start_values, record=record,
@@ -175,15 +173,11 @@ class Simulation:
         self.close()
 
     # ---- runs -------------------------------------------------------------------------------------
-    def run(self, stop_time: float | None = None, step_size: float | None = None,
-            start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
-            progress: Callable[[float], None] | None = None, tolerance: float | None = None,
-            timing: dict | None = None, coupling_order: int | None = None,
-            max_step: float | None = None, sink: ResultFile | None = None,
-            max_steps: float = MAX_STEPS, coupling: str | None = None) -> Result:
+    def run(self, options: RunOptions | None = None, start_values: dict[str, str | float] | None = None,
+            record: Sequence[str] | None = None, progress: Callable[[float], None] | None = None,
+            timing: dict | None = None, sink: ResultFile | None = None, **settings) -> Result:
         """Run the scenario once (Co-Simulation); the arguments and errors are those of `simulate`."""
-        options = RunOptions(stop_time=stop_time, step_size=step_size, tolerance=tolerance, max_step=max_step,
-                             coupling=coupling, coupling_order=coupling_order, max_steps=max_steps)
+        options = options_of(options, **settings)
         return self.run_experiment(options, experiment(self.scenario, options), start_values=start_values,
                                    record=record, progress=progress, timing=timing, sink=sink)
 

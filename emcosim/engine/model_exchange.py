@@ -39,7 +39,7 @@ from .errors import Interrupted, ScenarioError, SimulationError
 from .fmi import FMICallException
 from .instances import last_message
 from .ode import Statistics, System, transfers
-from .options import MAX_STEPS, ME_SOLVES, MIN_RTOL, Experiment, RunOptions, experiment
+from .options import MAX_STEPS, ME_SOLVES, MIN_RTOL, Experiment, RunOptions, experiment, options_of
 from .outputs import ResultFile
 from .plan import Plan, make_plan
 from .results import Result
@@ -126,15 +126,11 @@ class ModelExchangeSimulation:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def run(self, stop_time: float | None = None, step_size: float | None = None,
-            start_values: dict[str, str | float] | None = None, record: Sequence[str] | None = None,
-            progress: Callable[[float], None] | None = None, tolerance: float | None = None,
-            rtol: float | None = None, solver: str | None = None, solver_steps: bool = False,
-            timing: dict | None = None, sink: ResultFile | None = None, max_steps: float = MAX_STEPS) -> Result:
-        """Run the scenario once; the arguments and errors are those of master.simulate."""
-        options = RunOptions(stop_time=stop_time, step_size=step_size, tolerance=tolerance, rtol=rtol,
-                             interface_type="ModelExchange", solver=solver, solver_steps=solver_steps,
-                             max_steps=max_steps)
+    def run(self, options: RunOptions | None = None, start_values: dict[str, str | float] | None = None,
+            record: Sequence[str] | None = None, progress: Callable[[float], None] | None = None,
+            timing: dict | None = None, sink: ResultFile | None = None, **settings) -> Result:
+        """Run the scenario once as Model Exchange; the arguments and errors are those of master.simulate."""
+        options = options_of(options, **{"interface_type": "ModelExchange", **settings})
         return self.run_experiment(options, experiment(self.scenario, options), start_values=start_values,
                                    record=record, progress=progress, timing=timing, sink=sink)
 

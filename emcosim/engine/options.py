@@ -6,7 +6,7 @@ the same way everywhere, before any FMU is loaded.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .errors import LimitError, OptionError
 
@@ -62,6 +62,21 @@ class RunOptions:
     @property
     def model_exchange(self) -> bool:
         return self.interface_type == "ModelExchange"
+
+
+def options_of(options: RunOptions | None = None, **settings) -> RunOptions:
+    """The one RunOptions of a run: `options` (default: the scenario's choices) with `settings` (keyword
+    shorthands, the same names as RunOptions' fields) in place of its fields, checked again. A name that is no
+    field is a TypeError.
+
+    >>> options_of(RunOptions(stop_time=1.0), step_size=1e-3)
+    RunOptions(stop_time=1.0, step_size=0.001, tolerance=None, max_step=None, coupling=None, coupling_order=None, \
+max_steps=100000000, interface_type='CoSimulation', rtol=None, solver=None, solver_steps=False)
+    """
+    options = RunOptions() if options is None else options
+    if not isinstance(options, RunOptions):
+        raise TypeError(f"options must be a RunOptions, not {type(options).__name__}")
+    return replace(options, **settings) if settings else options
 
 
 def _shown(value) -> str:

@@ -56,10 +56,7 @@ def make_plan(scenario: Scenario, instances: dict, connections, record) -> Plan:
             sets.append((transfer, sources))
         stages.append((gets, sets))
     if record is None:
-        columns = [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
-                   if k.kind in ("input", "output")]
-        if not columns:
-            columns = [c.start for c in connections] + [c.end for c in connections]
+        columns = default_record(scenario, connections) or [c.start for c in connections] + [c.end for c in connections]
         columns = list(dict.fromkeys(columns))
     else:
         columns = list(record)
@@ -75,6 +72,18 @@ def make_plan(scenario: Scenario, instances: dict, connections, record) -> Plan:
     dynamic = {name for name, inst in instances.items() if dependencies.has_state(inst.model_description)}
     return Plan(stages, record_gets, columns, [slot_of(f) for f in columns], level, depends,
                 [(c.end, slot_of(c.end)) for c in connections], dynamic, slot)
+
+
+def default_record(scenario, connections=None) -> list[str]:
+    """What a run records when not told: every output connector and every input that no connection feeds
+    unchanged (in component order), so each connected value is recorded once (a connection's two ends carry
+    the same value; an input fed through a linear transformation or a unit conversion differs from its source
+    and is recorded). `connections`: the run's, with the unit conversions folded in (binding.connections);
+    default the .ssd's. Empty for a scenario that declares no connectors."""
+    connections = scenario.connections if connections is None else connections
+    fed = {c.end for c in connections if c.factor == 1.0 and c.offset == 0.0}
+    return [f"{c.name}.{k.name}" for c in scenario.components for k in c.connectors
+            if k.kind == "output" or (k.kind == "input" and f"{c.name}.{k.name}" not in fed)]
 
 
 def _batches(instances, fulls: list[str], slot_of, getter: bool):

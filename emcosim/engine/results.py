@@ -39,6 +39,7 @@ class Result:
         self.step_control: Any = None          # stepcontrol.StepReport of an error-controlled run
         self.implicit: Any = None              # implicit.Statistics of an implicitly coupled run
         self.model_exchange: Any = None        # model_exchange.Statistics of a Model Exchange run
+        self.units: dict[str, str] = {}        # unit of each column ('' for none), where the caller knows them
         if sink is not None:
             sink.start(self.columns, self.notes)
 
@@ -73,6 +74,17 @@ class Result:
         except ValueError:
             raise KeyError(f"no recorded variable '{name}' (recorded: {', '.join(self.columns)})") from None
         return np.array([r[i] for r in self._in_memory()], dtype=float)
+
+    def to_pandas(self):
+        """The rows as a pandas DataFrame: one column per recorded variable, indexed by time [s] (named
+        "time"); the units by column name in `df.attrs["units"]` (as far as known: `emcosim.run` fills them in
+        from the FMUs' modelDescriptions)."""
+        import pandas as pd
+
+        rows = np.array(self._in_memory(), dtype=float).reshape(-1, len(self.columns) + 1)
+        frame = pd.DataFrame(rows[:, 1:], columns=self.columns, index=pd.Index(rows[:, 0], name="time"))
+        frame.attrs["units"] = {"time": "s", **{n: self.units.get(n, "") for n in self.columns}}
+        return frame
 
     @classmethod
     def from_csv(cls, path: str | Path) -> "Result":

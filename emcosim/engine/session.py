@@ -17,6 +17,7 @@ import threading
 from typing import Callable, Sequence, TypeVar
 
 from . import binding, master
+from .options import RunOptions, options_of
 from .results import Result
 from .ssd import Scenario
 
@@ -25,21 +26,21 @@ T = TypeVar("T")
 
 class Session:
     """One scenario's FMUs, instantiated once in this process (on its main thread) and reset between
-    runs (a master.Simulation). Not thread-safe: use one session per thread (the sweep keeps one per
-    worker thread)."""
+    runs (a master.Simulation, or a model_exchange.ModelExchangeSimulation). Not thread-safe: use one session
+    per thread (the sweep keeps one per worker thread)."""
 
-    def __init__(self, scenario: Scenario):
-        self.simulation = master.Simulation(scenario, call=on_main_thread)
+    def __init__(self, scenario: Scenario, model_exchange: bool = False):
+        from .model_exchange import ModelExchangeSimulation
 
-    def run(self, start_values: dict[str, str | float] | None = None, stop_time: float | None = None,
-            step_size: float | None = None, record: Sequence[str] | None = None,
-            tolerance: float | None = None, coupling_order: int | None = None,
-            coupling: str | None = None) -> Result:
-        """Run the scenario once, like `master.simulate` with the same arguments (fixed communication
-        step unless a tolerance is given); raises the same ScenarioError / SimulationError."""
-        return self.simulation.run(stop_time=stop_time, step_size=step_size, start_values=start_values,
-                                   record=record, tolerance=tolerance, coupling_order=coupling_order,
-                                   coupling=coupling)
+        kind = ModelExchangeSimulation if model_exchange else master.Simulation
+        self.simulation: master.Simulation | ModelExchangeSimulation = kind(scenario, call=on_main_thread)
+
+    def run(self, start_values: dict[str, str | float] | None = None, options: RunOptions | None = None,
+            record: Sequence[str] | None = None, **settings) -> Result:
+        """Run the scenario once, like `master.simulate` with the same options (`settings`: shorthands for
+        RunOptions' fields); raises the same ScenarioError / SimulationError. A session made with
+        model_exchange=True runs its FMUs as Model Exchange."""
+        return self.simulation.run(options_of(options, **settings), start_values=start_values, record=record)
 
     def close(self) -> None:
         self.simulation.close()

@@ -116,7 +116,10 @@ VOLATILE = ("optimal rate", "no constant metric is faster", "because", "Omega", 
             "infeasibility certificate", "note:")
 
 
-def scenario_names(root: Path = ROOT / "scenarios") -> list[str]:
+def scenario_names(root: Path | None = None) -> list[str]:
+    from ..locations import SCENARIOS
+
+    root = SCENARIOS if root is None else root
     return sorted(p.name for p in root.iterdir() if (p / "SystemStructure.ssd").is_file())
 
 
@@ -131,7 +134,9 @@ def section(reports: dict[str, str]) -> str:
 
 def certify_all(names: list[str] | None = None) -> dict[str, str]:
     names = scenario_names() if names is None else names
-    return {n: certify_scenario(ROOT / "scenarios" / n).report() for n in names}
+    from ..locations import SCENARIOS
+
+    return {n: certify_scenario(SCENARIOS / n).report() for n in names}
 
 
 def _comparable(text: str) -> list[tuple[str, tuple[float, ...]]]:

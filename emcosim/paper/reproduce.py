@@ -24,12 +24,10 @@ from ..engine.output_folder import OutputFolder
 from ..engine.outputs import write_csv
 from ..engine.results import Result
 from ..engine.ssd import read_scenario
+from ..locations import SCENARIOS, fmus_of
 from ..progress import ProgressBar
 from . import report
 from .certify import design_from_scenario
-
-ROOT = Path(__file__).resolve().parents[2]
-SCENARIOS = ROOT / "scenarios"
 
 PAPER_CASES = {                       # role in the claims report -> scenario name
     "mems_reg_0": "mems_regulation_Dd0",
@@ -109,7 +107,7 @@ def run_from_result(name: str, label: str, scenario, result) -> report.Run:
 def _simulate_case(name: str, stop_time: float | None, fmu_dir: str | Path | None,
                    progress=None) -> tuple[list[str], list[list[float]], float]:
     """Run one paper scenario through the master: (columns, rows, wall time [s])."""
-    scenario = read_scenario(SCENARIOS / name, fmu_dir=fmu_dir)
+    scenario = read_scenario(SCENARIOS / name, fmu_dir=fmus_of(SCENARIOS / name, fmu_dir))
     tic = time.perf_counter()
     result = simulate(scenario, stop_time=stop_time, progress=progress)
     return result.columns, result.rows, time.perf_counter() - tic

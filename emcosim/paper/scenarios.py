@@ -4,7 +4,10 @@ and one .ssv per component from one table, with the numbers taken from component
 Physics-aware (it reads components/ for parameter records and the feasible initial state), so it
 is not part of the master's core; the master only reads the files this module writes.
 
-    python -m emcosim.paper.scenarios [--check]     # (re)write scenarios/, or check they are current
+    python -m emcosim.paper.scenarios [--check] [--out DIR]   # (re)write scenarios/, or check they are current
+
+From a checkout it writes the repository's scenarios/; from an installed wheel (whose scenarios are package
+data, read-only) it writes ./scenarios, never into site-packages.
 
 Choices the paper does not make (erratum 7 of docs and ../shared/notes/paper-errata.md) are written
 into the files as XML comments and listed in docs/scenarios.md.
@@ -22,10 +25,16 @@ from components.references import Sinusoid
 from ..devices.scenario import parameter_doc, reference_parameters
 from ..engine.ssd import PARAMETER_SET, Component, Connection, Connector, Parameter, Scenario
 from ..engine.ssd_writer import parameter_set_xml, system_structure_xml
+from ..locations import INSTALLED, SCENARIOS
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENARIOS = ROOT / "scenarios"
 FMU_DIR = "../../build/fmus"                       # relative to scenarios/<name>/
+
+
+def default_out() -> Path:
+    """Where `python -m emcosim.paper.scenarios` writes: the checkout's scenarios/, else ./scenarios."""
+    return Path.cwd() / "scenarios" if INSTALLED else SCENARIOS
+
 
 REFERENCE_OUT = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
 STATE = ["q", "p", "x_e"]
@@ -255,14 +264,16 @@ def pack_archives(fmu_dir: Path | str, dest: Path | str, verbose: bool = True) -
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="only check that scenarios/ is up to date")
+    parser.add_argument("--out", help="the folder to write (default: the checkout's scenarios/; installed: ./scenarios)")
     args = parser.parse_args(argv)
+    root = Path(args.out) if args.out else default_out()
     if args.check:
-        bad = stale()
+        bad = stale(root)
         for b in bad:
             print(f"stale: {b}", file=sys.stderr)
         return 1 if bad else 0
-    for path in write_all():
-        print(path.relative_to(ROOT))
+    for path in write_all(root):
+        print(path)
     return 0
 
 

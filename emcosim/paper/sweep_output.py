@@ -47,7 +47,10 @@ def csv_cells(row: dict, cols: list[str]) -> list:
 
 def _settings(info: dict) -> str:
     """How every run of the sweep ran: its coupling, steps and horizon."""
-    parts = [f"{info['coupling']} coupling" if info.get("coupling") else "the scenario's coupling"]
+    if info.get("interface_type") == "ModelExchange":
+        parts = ["Model Exchange (the FMUs' states as one ODE)"]
+    else:
+        parts = [f"{info['coupling']} coupling" if info.get("coupling") else "the scenario's coupling"]
     if info.get("coupling_order") is not None:
         parts.append(f"coupling order {info['coupling_order']}")
     if info.get("tolerance") is not None:

@@ -178,6 +178,11 @@ class Model:
             raise ValueError(f"{desc.source}: unknown parameter(s) {sorted(unknown)}; known: {list(desc.parameters)}")
         self.values = {n: desc.parameters[n].check(given.get(n, p.default), desc.name) for n, p in desc.parameters.items()}
         self.exact_values = {s: exact(self.values[s.name]) for s in desc.parameter_symbols}
+        for entry in ("M", "V", "Psi", "R_m", "J_e", "R_e", "G_e"):
+            at = self.at_values(getattr(desc, entry))
+            if at.has(sympy.zoo, sympy.nan, sympy.oo, sympy.I):
+                raise ValueError(f"{desc.source}: [model] {entry}: not finite at the parameter values "
+                                 f"{self.values} (a pole?): {at}")
         self.q, self.p, self.x = desc.q_symbols, desc.p_symbols, desc.x_e_symbols
         self.n_m, self.n_e = len(self.q), len(self.x)
         xv = sympy.Matrix(self.x)
@@ -511,7 +516,10 @@ def hess_phi_at(model: Model, x_e: Sequence[Any], exactly: bool) -> tuple[bool |
         ok, how = _decide(H, model, dict(zip(model.x, x_e)), "", symbolic=False)
         value = np.array(model.at_values(H).subs(dict(zip(model.x, x_e))).evalf(), dtype=float)
         return ok, min_eig(value), how
-    value = np.array(model.numeric("hess_phi", H, model.x)(*x_e), dtype=float).reshape(model.n_e, model.n_e)
+    with np.errstate(all="ignore"):
+        value = np.array(model.numeric("hess_phi", H, model.x)(*x_e), dtype=float).reshape(model.n_e, model.n_e)
+    if not np.all(np.isfinite(value)):
+        return None, math.nan, "numerically (hess phi not finite there)"
     lam = min_eig(value)
     return bool(lam > 0), lam, "numerically"
 
@@ -614,9 +622,19 @@ def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
         return v
     f = model.numeric("cond1T2", block, (*model.q, *model.p, *model.x))
     lo, hi = np.inf, -np.inf
+    bad: list[np.ndarray] = []                  # samples where the block is not finite: no NaN may "win" min/max
     for eta in points:
-        B = np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(2 * m, 2 * m)
+        with np.errstate(all="ignore"):
+            B = np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(2 * m, 2 * m)
+        if not np.all(np.isfinite(B)):
+            bad.append(eta)
+            continue
         lo, hi = min(lo, min_eig(B)), max(hi, max_eig(B))
+    if bad:
+        v.tests.append(Test(cond, NOT_DECIDED, "numerically over S (see the box)",
+                            f"the block is not finite (overflow, 0/0) at {len(bad)} of {len(points)} samples, first at "
+                            f"eta = {_numbers(bad[0])}: no sampled verdict"))
+        return v
     v.tests.append(Test(cond, HOLDS if lo > 0 else FAILS, "numerically over S (see the box)",
                         f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"))
     return v
@@ -630,6 +648,11 @@ def assumption_4(model: Model, structure: list[Test], trajectory: Trajectory | N
     cond = "hess phi(x_e*(t)) > 0 along the reference"
     if trajectory is not None and trajectory.eta:
         lams = [hess_phi_at(model, list(eta[2 * model.n_m:]), False)[1] for eta in trajectory.eta]
+        if not all(math.isfinite(lam) for lam in lams):
+            k = next(i for i, lam in enumerate(lams) if not math.isfinite(lam))
+            v.tests.append(Test(cond, NOT_DECIDED, f"numerically at the {len(lams)} feasible time(s) of the "
+                                f"{trajectory.description}", f"hess phi not finite at t = {trajectory.feasible_times[k]:.6g} s"))
+            return v
         k = int(np.argmin(lams))
         v.tests.append(Test(cond, HOLDS if lams[k] > 0 else FAILS,
                             f"numerically at the {len(lams)} feasible time(s) of the {trajectory.description}",

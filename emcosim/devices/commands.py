@@ -82,12 +82,13 @@ def cmd_check(args) -> int:
     if args.json:
         check_destination(Path(args.json))
     try:
-        reference = None
+        reference_of = None
         if args.reference:
-            from components import description as descriptions
-            desc = descriptions.load(args.file)
-            reference = StackedReference(reference_components(desc.q, _references(args.reference), desc.name))
-        _, report, _ = registry.load(args.file, q_d=args.q_d, reference=reference, horizon=args.horizon)
+            references = _references(args.reference)
+
+            def reference_of(desc):
+                return StackedReference(reference_components(desc.q, references, desc.name))
+        _, report, _ = registry.load(args.file, q_d=args.q_d, horizon=args.horizon, reference_of=reference_of)
     except ValueError as exc:
         raise _describe(exc) from None
     print(report.text())

@@ -50,6 +50,8 @@ TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controll
 CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c", "W")
 NUMBER = re.compile(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")"}
+EXPRESSION_CHARACTERS = re.compile(r"[A-Za-z0-9_+\-*/^(). \t\n]*\Z")
+"""The characters an expression may hold (a backslash, a quote, a control character never)."""
 MAX_EXPONENT = 1000
 """Largest constant exponent accepted in an expression; nested powers multiply: ((q+1)**40)**40 is 1600."""
 MAX_DIMENSION = 8
@@ -103,13 +105,19 @@ def _exponent_problem(node: Any, outer: float) -> str | None:
             e = math.inf
         total = outer * max(e, 1.0)
         if not total <= MAX_EXPONENT:
-            return f"an exponent {node.exp} (with the powers around it {total:.6g}) beyond +-{MAX_EXPONENT}"
+            return f"an exponent {_text(node.exp)} (with the powers around it {total:.6g}) beyond +-{MAX_EXPONENT}"
         return _exponent_problem(node.base, total) or _exponent_problem(node.exp, 1.0)
     for a in node.args:
         problem = _exponent_problem(a, outer)
         if problem:
             return problem
     return None
+
+
+def _text(node: Any) -> str:
+    """A sympy node for a message (str, not format(): Float.__format__ fails on some tiny Floats)."""
+    text = str(node)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 _MATH = {"sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin, "cos": math.cos, "tan": math.tan,
@@ -127,7 +135,7 @@ def _constant(node: Any) -> float | None:
         try:
             x = node.p / node.q
         except OverflowError:
-            raise _NotADouble(f"the constant {node} is beyond the range of a double") from None
+            raise _NotADouble(f"the constant {_text(node)} is beyond the range of a double") from None
         nonzero = node.p != 0
     elif isinstance(node, sympy.Float):
         x, nonzero = float(node), node != 0
@@ -150,15 +158,15 @@ def _constant(node: Any) -> float | None:
             else:
                 return None
         except (OverflowError, ZeroDivisionError, ValueError) as e:
-            raise _NotADouble(f"the constant {node} is not a finite real double ({type(e).__name__})") from None
+            raise _NotADouble(f"the constant {_text(node)} is not a finite real double ({type(e).__name__})") from None
         if isinstance(x, complex):
-            raise _NotADouble(f"the constant {node} is not real")
+            raise _NotADouble(f"the constant {_text(node)} is not real")
         if x == 0 and not nonzero:
             return 0.0
     if not math.isfinite(x):
-        raise _NotADouble(f"the constant {node} is not finite as a double")
+        raise _NotADouble(f"the constant {_text(node)} is not finite as a double")
     if (x != 0 and abs(x) < DOUBLE_MIN) or (x == 0 and nonzero):
-        raise _NotADouble(f"the constant {node} is nonzero but 0 or subnormal as a double (below {DOUBLE_MIN:.4g})")
+        raise _NotADouble(f"the constant {_text(node)} is nonzero but 0 or subnormal as a double (below {DOUBLE_MIN:.4g})")
     return x
 
 
@@ -389,6 +397,10 @@ class _Parser:
             if problem:
                 raise self.error(table, entry, f"{value!r} {problem}")
             return sympy.Float(value) if isinstance(value, float) else sympy.Integer(value)
+        if not EXPRESSION_CHARACTERS.match(value):
+            bad = next(ch for ch in value if not EXPRESSION_CHARACTERS.match(ch))
+            raise self.error(table, entry, f"{value[:60]!r}: the character {bad!r} is not allowed (names, numbers, "
+                                           "+ - * / ** ^, parentheses and spaces only)")
         if len(value) > MAX_EXPRESSION:
             raise self.error(table, entry, f"the expression has {len(value)} characters; at most {MAX_EXPRESSION}")
         try:
@@ -460,7 +472,11 @@ class _Parser:
             raise self.error(table, entry, f"{value!r} is not a finite real expression")
         for node in sympy.preorder_traversal(result):
             if isinstance(node, sympy.Pow) and node.exp.is_number and not abs(node.exp) <= MAX_EXPONENT:
-                raise self.error(table, entry, f"{value!r}: the power {node} has an exponent beyond +-{MAX_EXPONENT}")
+                raise self.error(table, entry, f"{value!r}: the power {_text(node)} has an exponent beyond +-{MAX_EXPONENT}")
+        try:
+            _constant(result)                  # sympy's form too: exp(q + 1000) becomes 1.97e434*exp(q)
+        except _NotADouble as e:
+            raise self.error(table, entry, f"{value!r} (evaluated: {str(result)[:80]}): {e}") from None
         return result
 
     def allowed_text(self, allowed: set[sympy.Symbol]) -> str:

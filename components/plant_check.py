@@ -29,6 +29,7 @@ import numpy as np
 import sympy
 from scipy import optimize
 
+from .bounded import time_limit
 from .certificates import FAILS, HOLDS, max_eig, min_eig, reference_period
 from .device import DESIGNS
 from .ph_plant import Jet
@@ -144,21 +145,39 @@ def exact(value: float) -> sympy.Rational:
     return sympy.Rational(repr(float(value)))
 
 
-def positive_definite(A: sympy.Matrix) -> bool | None:
+def positive_definite(A: sympy.Matrix, stopped: list[str] | None = None) -> bool | None:
     """Sylvester's criterion: True when sympy proves every leading principal minor > 0, False when one is
-    proven <= 0, None when sympy cannot decide."""
+    proven <= 0, None when sympy cannot decide (or not within SYMBOLIC_SECONDS: then `stopped` gets a note)."""
+    from .description import SYMBOLIC_SECONDS
+
     decided: list[bool | None] = []
-    for k in range(1, A.shape[0] + 1):
-        minor = sympy.simplify(A[:k, :k].det())
-        positive = minor.is_positive
-        if positive is False:
-            return False
-        decided.append(positive)
+    with time_limit(SYMBOLIC_SECONDS) as limit:
+        for k in range(1, A.shape[0] + 1):
+            minor = sympy.simplify(A[:k, :k].det())
+            positive = minor.is_positive
+            if positive is False:
+                return False
+            decided.append(positive)
+    if limit.expired:
+        if stopped is not None:
+            stopped.append(f"; the symbolic check stopped at its time limit of {SYMBOLIC_SECONDS:g} s (SYMBOLIC_SECONDS)")
+        return None
     return True if all(d is True for d in decided) else None
 
 
 def _is_zero(e: sympy.Expr) -> bool:
-    return e == 0 or sympy.simplify(e) == 0
+    """e == 0 identically; ValueError if sympy cannot tell within SYMBOLIC_SECONDS."""
+    from .description import SYMBOLIC_SECONDS
+
+    if e == 0:
+        return True
+    result = False
+    with time_limit(SYMBOLIC_SECONDS) as limit:
+        result = sympy.simplify(e) == 0
+    if limit.expired:
+        raise ValueError(f"the symbolic identity check of {str(e)[:80]} = 0 took longer than {SYMBOLIC_SECONDS:g} s "
+                         "(SYMBOLIC_SECONDS); simplify the description's expressions")
+    return result
 
 
 def _numbers(values: Any) -> str:
@@ -420,11 +439,13 @@ def _decide(A: sympy.Matrix, model: Model, at: Mapping[sympy.Symbol, Any], what:
     """A > 0 symbolically for every admissible parameter value (the parameters' conditions as sympy
     assumptions), else exactly at the parameter values. `symbolic` is False when `at` holds numbers computed
     at the parameter values (x_e_d): then only the exact evaluation is consistent."""
+    stopped: list[str] = []
     if symbolic:
-        decided = positive_definite(A.subs(at))
+        decided = positive_definite(A.subs(at), stopped)
         if decided is not None:
             return decided, f"symbolic for every admissible parameter value{what}"
-    return positive_definite(model.at_values(A).subs(at)), f"exact at the parameter values{what}"
+    decided = positive_definite(model.at_values(A).subs(at), stopped)
+    return decided, f"exact at the parameter values{what}{''.join(stopped[-1:])}"
 
 
 def R_m_test(model: Model) -> Test:

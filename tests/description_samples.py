@@ -1,8 +1,8 @@
 """Plant description files made by code for the tests (sizes, hostile text, fuzzing)."""
 
 
-def diagonal_device(n: int, name: str = "Diag") -> str:
-    """A TOML description of n decoupled maglev-like axes (M, Psi, R's diagonal)."""
+def diagonal_device(n: int, name: str = "Diag", mass: str = "m{i}*(1 + q{i}**2)") -> str:
+    """A TOML description of n decoupled maglev-like axes (M, Psi, R's diagonal); `mass` the entry M_ii."""
     def diag(entries):
         return "[" + ", ".join("[" + ", ".join(entries[i] if i == j else "0" for j in range(n)) + "]" for i in range(n)) + "]"
     def v(k, unit, what):
@@ -20,7 +20,7 @@ u = {v("u", "V", "voltage")}
 {pars}
 R = [2.0, "Ohm", "resistance", "> 0"]
 [model]
-M = {diag([f'"m{i}*(1 + q{i}**2)"' for i in range(n)])}
+M = {diag(['"' + mass.format(i=i) + '"' for i in range(n)])}
 V = "{' + '.join(f'b{i}*q{i}' for i in range(n))}"
 Psi = {diag([f'"(c{i} - q{i})/k{i}"' for i in range(n)])}
 R_m = {diag(['"R"'] * n)}

@@ -261,3 +261,16 @@ def test_the_issue_s_unclear_errors_name_the_file_and_the_entry(tmp_path, capsys
     assert main(["plant", "check", str(path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith(f"emcosim: error: {path}: {entry}: ") and "Traceback" not in "\n".join(err)
+
+
+@pytest.mark.parametrize("text", ["a ---> <x/>", "--->", "end-", "a -- b", "x\n-->\n<y/>"])
+def test_text_in_an_xml_comment_cannot_end_it(text):
+    """Parameter descriptions reach the .ssv as comments (emcosim plant scenario): "--->" became "- -->" and
+    ended the comment, putting the rest of the text into the XML."""
+    from xml.etree import ElementTree as ET
+
+    from emcosim.engine.ssd_writer import _comment
+    body = _comment(text)
+    assert "--" not in body and not body.endswith("-")
+    root = ET.fromstring(f"<a><!-- {body} --></a>")
+    assert len(root) == 0

@@ -56,6 +56,10 @@ MAX_EXPONENT = 1000
 """Largest constant exponent accepted in an expression; nested powers multiply: ((q+1)**40)**40 is 1600."""
 MAX_DIMENSION = 8
 """Largest n_m and n_e (the generated code holds n_m^2 n_e^2 second derivatives of Psi)."""
+MAX_FILE = 1_000_000
+"""Largest description file (bytes)."""
+MAX_PARAMETERS = 200
+"""Most parameters of a table ([parameters], [controller.parameters])."""
 MAX_EXPRESSION = 2000
 """Longest expression string (characters)."""
 MAX_NODES = 500
@@ -235,9 +239,16 @@ def load(path: str | Path) -> Description:
     """Read and check the description file at `path`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as f:
+            data = f.read(MAX_FILE + 1)
     except OSError as e:
         raise DescriptionError(f"{path}: [file] {path.name}: cannot be read ({e.strerror})") from None
+    if len(data) > MAX_FILE:
+        raise DescriptionError(f"{path}: [file] {path.name}: larger than {MAX_FILE} bytes (MAX_FILE)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise DescriptionError(f"{path}: [file] {path.name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
     return parse(text, str(path))
 
 
@@ -256,6 +267,8 @@ class _Parser:
 
     # ---- the file -----------------------------------------------------------------------------------
     def run(self, text: str) -> Description:
+        if len(text) > MAX_FILE:
+            raise self.error("file", "TOML", f"larger than {MAX_FILE} characters (MAX_FILE)")
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
@@ -361,6 +374,8 @@ class _Parser:
     def parameters(self, table: Any, where: str, taken: set[str]) -> dict[str, Parameter]:
         if not isinstance(table, dict):
             raise self.error(where, where, "must be a table")
+        if len(table) > MAX_PARAMETERS:
+            raise self.error(where, where, f"{len(table)} parameters: at most {MAX_PARAMETERS} (MAX_PARAMETERS)")
         out: dict[str, Parameter] = {}
         for name, e in table.items():
             self.check_name(where, name, name, taken | set(out))

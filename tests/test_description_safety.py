@@ -274,3 +274,18 @@ def test_text_in_an_xml_comment_cannot_end_it(text):
     assert "--" not in body and not body.endswith("-")
     root = ET.fromstring(f"<a><!-- {body} --></a>")
     assert len(root) == 0
+
+
+def test_a_huge_or_binary_file_and_too_many_parameters_are_refused(tmp_path):
+    big = tmp_path / "big.toml"
+    big.write_text(ISSUE_MAGLEV + "#" * (description.MAX_FILE + 1))
+    with pytest.raises(DescriptionError, match=r"big\.toml: \[file\] big\.toml: larger than"):
+        description.load(big)
+    binary = tmp_path / "bin.toml"
+    binary.write_bytes(b"name = \"A\"\n\xff\xfe")
+    with pytest.raises(DescriptionError, match=r"bin\.toml: \[file\] bin\.toml: not UTF-8"):
+        description.load(binary)
+    many = "\n".join(f'z{i} = [1.0, "1", "unused"]' for i in range(201))
+    with pytest.raises(DescriptionError, match=r"\[parameters\] parameters: 207 parameters: at most 200"):
+        parse(ISSUE_MAGLEV.replace("[parameters]     # name = [default, unit, description]",
+                                   "[parameters]\n" + many), "m.toml")

@@ -78,15 +78,15 @@ def identifier_problem(name: object, kind: str = "name") -> str | None:
 
 def text_problem(text: object, limit: int = MAX_TEXT) -> str | None:
     """Why `text` may not be free text of a description (None: it may): a string of at most `limit`
-    characters without control characters (XML 1.0 cannot carry most of them; none belongs in a
-    description)."""
+    characters without control characters (XML 1.0 cannot carry most of them), format characters (a
+    right-to-left override would show a reader other text than there is) or line separators."""
     if not isinstance(text, str):
         return f"{text!r} is not a string"
     if len(text) > limit:
         return f"is longer than {limit} characters"
-    bad = [c for c in text if unicodedata.category(c) in ("Cc", "Cs", "Co", "Cn") and c != " "]
+    bad = [c for c in text if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp")]
     if bad:
-        return f"contains the control or unassigned character {bad[0]!r}"
+        return f"contains the control, format, line-separator or unassigned character {bad[0]!r}"
     return None
 
 

@@ -85,6 +85,8 @@ def test_a_file_name_never_becomes_code(tmp_path):
     ("variables", '"position of the ball (magnet at q = c)"', '"x\\rimport os"'),
     ("variables", '"m",      "position', '"m\\"); import os; (\\"",      "position'),
     ("parameters", '"Ohm",   "coil resistance"', '"Ohm\\n",   "coil resistance"'),
+    ("parameters", '"coil resistance"', '"coil \\u202eresistance"'),
+    ("parameters", '"coil resistance"', '"coil \\u2028resistance"'),
     ("top level", 'description = "Magnetic levitation system (paper Section 7.2)"', f'description = "{"x" * 501}"'),
 ])
 def test_text_with_line_breaks_or_control_characters_is_refused(field, old, new):

@@ -31,10 +31,10 @@ from tests.test_description import ISSUE_MAGLEV
 pytestmark = pytest.mark.reliability
 
 SEED = 31
-N_VALUE = 1500          # expressions from the grammar, checked against an independent evaluation
-N_EXTREME = 1000        # expressions with extreme numbers and exponents (refused, or finite as doubles)
+N_VALUE = 3000          # expressions from the grammar, checked against an independent evaluation
+N_EXTREME = 2000        # expressions with extreme numbers and exponents (refused, or finite as doubles)
 N_HOSTILE_EXPR = 400    # expressions with code in them (always refused)
-N_FILES = 250           # mutated files (names, units, text, numbers, shapes, types)
+N_FILES = 500           # mutated files (names, units, text, numbers, shapes, types)
 N_CHECKS = 30           # random valid variants through plant check
 CASE_LIMIT = 2 * description.SYMBOLIC_SECONDS + 2.0     # seconds one case may take (a hang past its limit fails)
 

@@ -36,6 +36,7 @@ from .ph_plant import Jet
 from .references import Constant, Reference, Sinusoid, SmoothStep
 
 NOT_DECIDED = "not decided"
+NOT_FINITE = "not finite"          # the start of the reason where a number of a numeric test overflowed
 ASSUMPTION_OF = {"Proposition1": "Assumption 1", "Proposition2": "Assumption 2",
                  "Theorem2": "Assumption 3", "Theorem3": "Assumption 4"}
 TIMES = 21          # sampled times of a reference
@@ -256,7 +257,10 @@ class Model:
         return np.asarray(self.numeric("M", self.desc.M, self.q)(*q), dtype=float) @ qd
 
     def electrical_state(self, q: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """A real x_e with grad_q H_e(q, x_e) = b, numerically; (None, why) if there is none (or none was found)."""
+        """A real x_e with grad_q H_e(q, x_e) = b, numerically; (None, why) if there is none (or none was found);
+        (None, NOT_FINITE + why) where the numbers are not finite (overflow): no verdict from them."""
+        if not np.all(np.isfinite(b)) or not np.all(np.isfinite(q)):
+            return None, f"{NOT_FINITE}: the required force {_numbers(b)} at q = {_numbers(q)}"
         if self.diagonal:
             A = np.asarray(self.numeric("A", self.A, self.q)(*q), dtype=float).reshape(self.n_m, self.n_e)
             if self.n_m == self.n_e and np.linalg.cond(A) < 1e12:
@@ -271,6 +275,8 @@ class Model:
                     if res > tol:
                         return None, f"no w = x_e^2 >= 0 solves A(q) w = b (nnls residual {res:.3g})"
                     how = "x_e_i^2 = w_i >= 0 from nnls on A(q) w = b (not unique: n_e != n_m)"
+            if not np.all(np.isfinite(w)):
+                return None, f"{NOT_FINITE}: x_e^2 = w = {_numbers(w)} (A(q) = {_numbers(A.ravel())})"
             if np.any(w < 0):
                 return None, f"x_e^2 = w = {_numbers(w)} has a negative entry: no real x_e"
             return self.sign * np.sqrt(w), how
@@ -282,8 +288,11 @@ class Model:
         rng = np.random.default_rng(25)
         for size in np.logspace(-6, 3, SOLVE_STARTS):
             x0 = self.sign * size * (1.0 + 0.1 * rng.standard_normal(self.n_e))
-            sol = optimize.least_squares(lambda x: (np.asarray(g(*q, *x), dtype=float).ravel() - b) / scale, x0,
-                                         xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            try:
+                sol = optimize.least_squares(lambda x: (np.asarray(g(*q, *x), dtype=float).ravel() - b) / scale, x0,
+                                             xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            except ValueError:                      # residuals not finite at the start: try the next size
+                continue
             if np.linalg.norm(sol.fun) < 1e-10:
                 return sol.x, f"least squares from {SOLVE_STARTS} starts (dPsi/dq_k not all diagonal)"
         return None, f"no solution found by least squares from {SOLVE_STARTS} starts (not a proof that none exists)"
@@ -345,7 +354,7 @@ def check_setpoint(model: Model, q_d: list[float] | None) -> tuple[Verdict, list
     qv = np.array(q_d, dtype=float)
     x_num, how = model.electrical_state(qv, -np.asarray(model.numeric("grad_V", model.grad_V, model.q)(*qv),
                                                          dtype=float).ravel())
-    found = HOLDS if x_num is not None else (FAILS if model.diagonal else NOT_DECIDED)
+    found = HOLDS if x_num is not None else (FAILS if model.diagonal and not how.startswith(NOT_FINITE) else NOT_DECIDED)
     v.tests.append(Test(cond, found, "numerically: " + how, "" if x_num is None else f"x_e_d = {_numbers(x_num)}"))
     return v, None, None if outside else x_num
 
@@ -422,7 +431,7 @@ def check_reference(model: Model, reference: Any, horizon: float | None,
                         f"outside at t = {_numbers(outside[:5])} s" if outside else ""))
     if infeasible:
         t0, why = infeasible[0]
-        verdict = FAILS if model.diagonal else NOT_DECIDED
+        verdict = FAILS if model.diagonal and not any(w.startswith(NOT_FINITE) for _, w in infeasible) else NOT_DECIDED
         v.tests.append(Test("real x_e*(t) with grad_q H_e(q*, x_e*) = -(p*' + R_m q*' + grad V + grad_q T)", verdict,
                             f"numerically at {what}",
                             f"none at {len(infeasible)} of {len(ts)} times, first t = {t0:.6g} s: {why}"))

@@ -291,3 +291,10 @@ def test_a_huge_or_binary_file_and_too_many_parameters_are_refused(tmp_path):
     with pytest.raises(DescriptionError, match=r"\[parameters\] parameters: 207 parameters: at most 200"):
         parse(ISSUE_MAGLEV.replace("[parameters]     # name = [default, unit, description]",
                                    "[parameters]\n" + many), "m.toml")
+
+
+def test_an_overflowing_force_gives_no_electrical_state_and_no_verdict():
+    """A required force that overflowed (inf) gave x_e = sqrt(inf) and a set-point that 'held'."""
+    model = plant_check.Model(parse(ISSUE_MAGLEV, "m.toml"))
+    x, why = model.electrical_state(np.array([0.001]), np.array([np.inf]))
+    assert x is None and why.startswith(plant_check.NOT_FINITE)

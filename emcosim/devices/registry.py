@@ -27,7 +27,7 @@ def load(path: str | Path, q_d=None, reference=None, horizon: float | None = Non
 
 def _checked(path: str | None, text: tuple[str, str] | None, q_d=None, reference=None, horizon: float | None = None,
              reference_of=None):
-    from components import bounded, codegen
+    from components import bounded, codegen, plant_check  # noqa: F401 - imported before the fork: the worker imports nothing
 
     desc, report, source = bounded.in_worker(_parse_and_check, path, text, q_d, reference, horizon, reference_of,
                                              what=f"{path or text[1]}: parsing and checking")

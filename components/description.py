@@ -10,11 +10,16 @@ Expressions are never evaluated as Python: each is tokenized and may hold only k
 parameter names, the functions of FUNCTIONS, numbers, + - * / ** ^ and parentheses; it is then parsed by
 sympy with an explicit namespace and no builtins. Every bad input raises DescriptionError naming the file,
 the table and the entry.
+
+A description is data, never code (issue 31): names obey components.identifiers.identifier_problem, free
+text components.identifiers.text_problem, and the work a file can cause is bounded: MAX_DIMENSION,
+MAX_EXPRESSION characters and MAX_NODES nodes per expression, exponents (also nested ones, multiplied) up
+to MAX_EXPONENT, every constant finite and not subnormal as a double, and the symbolic checks limited to
+SYMBOLIC_SECONDS each (components.bounded.time_limit; past it the sampled test decides, and `notes` says so).
 """
 from __future__ import annotations
 
 import io
-import keyword
 import math
 import re
 import tokenize
@@ -27,7 +32,9 @@ import numpy as np
 import sympy
 from sympy.parsing.sympy_parser import parse_expr
 
+from .bounded import time_limit
 from .device import VariableSpec
+from .identifiers import NAME, identifier_problem, text_problem, unit_problem
 from .parameters import Parameter
 
 FUNCTIONS: dict[str, Any] = {
@@ -41,18 +48,130 @@ MODEL_OPTIONAL = ("domain", "Gamma", "phi", "x_e_sign", "u_max")
 VARIABLE_KINDS = ("q", "p", "x_e", "u")
 TOP_KEYS = {"name", "description", "variables", "parameters", "model", "controller", "operating_point"}
 CONTROLLER_GAINS = ("q_d", "R_e_bar", "D_d", "k_c", "W")
-NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
-DEVICE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*\Z")
 NUMBER = re.compile(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")"}
+EXPRESSION_CHARACTERS = re.compile(r"[A-Za-z0-9_+\-*/^(). \t\n]*\Z")
+"""The characters an expression may hold (a backslash, a quote, a control character never)."""
 MAX_EXPONENT = 1000
-"""Largest constant exponent accepted in an expression."""
+"""Largest constant exponent accepted in an expression; nested powers multiply: ((q+1)**40)**40 is 1600."""
+MAX_DIMENSION = 8
+"""Largest n_m and n_e (the generated code holds n_m^2 n_e^2 second derivatives of Psi)."""
+MAX_FILE = 1_000_000
+"""Largest description file (bytes)."""
+MAX_PARAMETERS = 200
+"""Most parameters of a table ([parameters], [controller.parameters])."""
+MAX_EXPRESSION = 2000
+"""Longest expression string (characters)."""
+MAX_NODES = 500
+"""Most sympy nodes of one parsed expression."""
+MAX_LITERAL = 40
+"""Longest number literal (characters)."""
+SYMBOLIC_SECONDS = 5.0
+"""Time limit of one symbolic decision (a Sylvester criterion, a sign on the domain); past it the property is
+checked at sample points and the note says that the limit was reached."""
+DOUBLE_MIN = 2.2250738585072014e-308
+"""The smallest normal double: a nonzero constant below it would be 0 or subnormal in the FMU's arithmetic."""
 SAMPLE_POINTS = 200
 """Points of the domain at which a property sympy cannot decide is checked (docs/plant-description.md)."""
 
 
 class DescriptionError(ValueError):
     """A wrong plant description; the message starts with `<file>: [<table>] <entry>: `."""
+
+
+class _NotADouble(ValueError):
+    """A constant of an expression that the FMU's double arithmetic cannot hold (see _constant)."""
+
+
+def _double_problem(value: float | int, nonzero: bool | None = None) -> str | None:
+    """Why a number is not a usable double (None: it is): infinite or NaN, beyond the double range, or nonzero
+    but below DOUBLE_MIN (0 or subnormal in the FMU while sympy calls it positive). `nonzero`: whether the
+    exact value (a literal's digits) is nonzero, if `value` is its rounded double."""
+    try:
+        x = float(value)
+    except OverflowError:
+        return "is beyond the range of a double (|x| < 1.8e308)"
+    if not math.isfinite(x):
+        return "is not finite as a double (|x| < 1.8e308)"
+    if nonzero is None:
+        nonzero = value != 0
+    if x != 0 and abs(x) < DOUBLE_MIN or (x == 0 and nonzero):
+        return f"is nonzero but below {DOUBLE_MIN:.4g} in magnitude: 0 or subnormal as a double"
+    return None
+
+
+def _exponent_problem(node: Any, outer: float) -> str | None:
+    """An exponent beyond MAX_EXPONENT, counting nested powers as their product (the degree they build)."""
+    if isinstance(node, sympy.Pow) and node.exp.is_number:
+        try:
+            e = abs(float(node.exp)) if not node.exp.free_symbols else math.inf
+        except (TypeError, ValueError, OverflowError):
+            e = math.inf
+        total = outer * max(e, 1.0)
+        if not total <= MAX_EXPONENT:
+            return f"an exponent {_text(node.exp)} (with the powers around it {total:.6g}) beyond +-{MAX_EXPONENT}"
+        return _exponent_problem(node.base, total) or _exponent_problem(node.exp, 1.0)
+    for a in node.args:
+        problem = _exponent_problem(a, outer)
+        if problem:
+            return problem
+    return None
+
+
+def _text(node: Any) -> str:
+    """A sympy node for a message (str, not format(): Float.__format__ fails on some tiny Floats)."""
+    text = str(node)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+_MATH = {"sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin, "cos": math.cos, "tan": math.tan,
+         "sinh": math.sinh, "cosh": math.cosh, "tanh": math.tanh, "atan": math.atan, "asin": math.asin,
+         "acos": math.acos}
+
+
+def _constant(node: Any) -> float | None:
+    """The value as a double of a constant (sub)expression of an unevaluated tree, None for one with symbols;
+    every constant subexpression is checked: _NotADouble if one is not finite, not real, or nonzero in exact
+    arithmetic but 0 or subnormal as a double (exp(-1000), 1e-200*1e-200)."""
+    if isinstance(node, sympy.Symbol):
+        return None
+    if isinstance(node, (sympy.Integer, sympy.Rational)):
+        try:
+            x = node.p / node.q
+        except OverflowError:
+            raise _NotADouble(f"the constant {_text(node)} is beyond the range of a double") from None
+        nonzero = node.p != 0
+    elif isinstance(node, sympy.Float):
+        x, nonzero = float(node), node != 0
+    elif node is sympy.pi:
+        return math.pi
+    else:
+        args = [_constant(a) for a in node.args]
+        if any(a is None for a in args) or not args:
+            return None
+        name = type(node).__name__
+        try:
+            if isinstance(node, sympy.Add):
+                x, nonzero = math.fsum(args), False        # a sum may cancel to 0 exactly
+            elif isinstance(node, sympy.Mul):
+                x, nonzero = math.prod(args), all(a != 0 for a in args)
+            elif isinstance(node, sympy.Pow):
+                x, nonzero = args[0] ** args[1], args[0] != 0
+            elif name in _MATH:
+                x, nonzero = _MATH[name](args[0]), name in ("exp", "cosh")
+            else:
+                return None
+        except (OverflowError, ZeroDivisionError, ValueError) as e:
+            raise _NotADouble(f"the constant {_text(node)} is not a finite real double ({type(e).__name__})") from None
+        if isinstance(x, complex):
+            raise _NotADouble(f"the constant {_text(node)} is not real")
+        if x == 0 and not nonzero:
+            return 0.0
+    if not math.isfinite(x):
+        raise _NotADouble(f"the constant {_text(node)} is not finite as a double")
+    if (x != 0 and abs(x) < DOUBLE_MIN) or (x == 0 and nonzero):
+        raise _NotADouble(f"the constant {_text(node)} is nonzero but 0 or subnormal as a double (below {DOUBLE_MIN:.4g})")
+    return x
 
 
 @dataclass(frozen=True)
@@ -126,9 +245,16 @@ def load(path: str | Path) -> Description:
     """Read and check the description file at `path`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as f:
+            data = f.read(MAX_FILE + 1)
     except OSError as e:
         raise DescriptionError(f"{path}: [file] {path.name}: cannot be read ({e.strerror})") from None
+    if len(data) > MAX_FILE:
+        raise DescriptionError(f"{path}: [file] {path.name}: larger than {MAX_FILE} bytes (MAX_FILE)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise DescriptionError(f"{path}: [file] {path.name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
     return parse(text, str(path))
 
 
@@ -147,6 +273,8 @@ class _Parser:
 
     # ---- the file -----------------------------------------------------------------------------------
     def run(self, text: str) -> Description:
+        if len(text) > MAX_FILE:
+            raise self.error("file", "TOML", f"larger than {MAX_FILE} characters (MAX_FILE)")
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
@@ -158,10 +286,13 @@ class _Parser:
             if key not in data:
                 raise self.error("top level", key, "missing")
         name = data["name"]
-        if not isinstance(name, str) or not DEVICE_NAME.match(name):
-            raise self.error("top level", "name", f"{name!r} is not an identifier [A-Za-z][A-Za-z0-9]* (the FMU name)")
-        if not isinstance(data["description"], str):
-            raise self.error("top level", "description", "must be a string")
+        problem = identifier_problem(name, "device")
+        if problem:
+            raise self.error("top level", "name", f"{problem} (the device's name names its FMUs)")
+        problem = text_problem(data["description"])
+        if problem:
+            raise self.error("top level", "description", f"must be a string of text: it {problem}"
+                             if isinstance(data["description"], str) else "must be a string")
         variables = self.variables(data["variables"])
         parameters = self.parameters(data["parameters"], "parameters", set(variables["names"]))
         self.symbols: dict[str, sympy.Symbol] = {}
@@ -211,6 +342,7 @@ class _Parser:
                 if not (isinstance(e, list) and len(e) == 3 and all(isinstance(s, str) for s in e)):
                     raise self.error("variables", f"{kind}[{i}]", f"{e!r} is not [name, unit, description] (strings)")
                 self.check_name("variables", f"{kind}[{i}]", e[0], out["names"])
+                self.check_text("variables", f"{kind}[{i}]", e[1], e[2])
                 out["names"].append(e[0])
                 specs.append(VariableSpec(*e))
             out[kind] = tuple(specs)
@@ -218,22 +350,47 @@ class _Parser:
             raise self.error("variables", "p", f"{len(out['p'])} momenta for {len(out['q'])} positions q (n_m each)")
         if len(out["u"]) != len(out["x_e"]):
             raise self.error("variables", "u", f"{len(out['u'])} inputs for {len(out['x_e'])} electrical states (n_e each)")
+        for kind in ("q", "x_e"):
+            if len(out[kind]) > MAX_DIMENSION:
+                raise self.error("variables", kind, f"{len(out[kind])} entries: at most {MAX_DIMENSION} (MAX_DIMENSION)")
+        derived = [f"{v.name}_0" for k in ("q", "p", "x_e") for v in out[k]]
+        derived += [f"{v.name}_star{s}" for v in out["q"] for s in ("", "_dot", "_ddot", "_dddot")]
+        self.derived_names = set(derived)
+        clash = sorted(set(derived) & set(out["names"]))
+        if clash:
+            raise self.error("variables", clash[0], "is a name the FMUs derive from another variable (<state>_0, "
+                                                    "<q>_star...); choose another")
         return out
 
     def check_name(self, table: str, entry: str, name: str, taken) -> None:
-        if not NAME.match(name) or keyword.iskeyword(name):
-            raise self.error(table, entry, f"name {name!r} is not an identifier [A-Za-z][A-Za-z0-9_]*")
         if name in FUNCTIONS:
             raise self.error(table, entry, f"name {name!r} is a function of the expressions; choose another")
+        problem = identifier_problem(name)
+        if problem:
+            raise self.error(table, entry, f"name {problem}")
         if name in taken:
             raise self.error(table, entry, f"name {name!r} is used twice (variables and parameters share one namespace)")
+
+    def check_text(self, table: str, entry: str, unit: Any, text: Any) -> None:
+        """A unit (components.identifiers.unit_problem) and a description (text_problem): data only."""
+        problem = unit_problem(unit)
+        if problem:
+            raise self.error(table, entry, f"unit {problem}")
+        problem = text_problem(text)
+        if problem:
+            raise self.error(table, entry, f"description {problem}")
 
     def parameters(self, table: Any, where: str, taken: set[str]) -> dict[str, Parameter]:
         if not isinstance(table, dict):
             raise self.error(where, where, "must be a table")
+        if len(table) > MAX_PARAMETERS:
+            raise self.error(where, where, f"{len(table)} parameters: at most {MAX_PARAMETERS} (MAX_PARAMETERS)")
         out: dict[str, Parameter] = {}
         for name, e in table.items():
             self.check_name(where, name, name, taken | set(out))
+            if name in getattr(self, "derived_names", ()):
+                raise self.error(where, name, f"name {name!r} is a name the FMUs derive from a variable (<state>_0, "
+                                              "<q>_star...); choose another")
             if not (isinstance(e, list) and len(e) in (3, 4)):
                 raise self.error(where, name, f"{e!r} is not [default, unit, description] or [default, unit, description, "
                                               "condition]")
@@ -243,6 +400,7 @@ class _Parser:
                 raise self.error(where, name, f"default {default!r} is not a number")
             if not isinstance(unit, str) or not unit or not isinstance(text, str):
                 raise self.error(where, name, "unit and description must be strings (unit \"1\" if dimensionless)")
+            self.check_text(where, name, unit, text)
             if condition not in CONDITIONS:
                 raise self.error(where, name, f"condition {condition!r} is not one of {list(CONDITIONS)}")
             p = Parameter(name, float(default), unit, text, condition)
@@ -259,9 +417,16 @@ class _Parser:
         if isinstance(value, bool) or not isinstance(value, (str, int, float)):
             raise self.error(table, entry, f"{value!r} is not an expression (a string or a number)")
         if not isinstance(value, str):
-            if not math.isfinite(value):
-                raise self.error(table, entry, f"{value!r} is not finite")
+            problem = _double_problem(value)
+            if problem:
+                raise self.error(table, entry, f"{value!r} {problem}")
             return sympy.Float(value) if isinstance(value, float) else sympy.Integer(value)
+        if not EXPRESSION_CHARACTERS.match(value):
+            bad = next(ch for ch in value if not EXPRESSION_CHARACTERS.match(ch))
+            raise self.error(table, entry, f"{value[:60]!r}: the character {bad!r} is not allowed (names, numbers, "
+                                           "+ - * / ** ^, parentheses and spaces only)")
+        if len(value) > MAX_EXPRESSION:
+            raise self.error(table, entry, f"the expression has {len(value)} characters; at most {MAX_EXPRESSION}")
         try:
             tokens = list(tokenize.generate_tokens(io.StringIO(value).readline))
         except (tokenize.TokenError, IndentationError, SyntaxError) as e:
@@ -285,6 +450,12 @@ class _Parser:
             elif t.type == tokenize.NUMBER:
                 if not NUMBER.match(t.string):
                     raise self.error(table, entry, f"number {t.string!r} in {value!r} is not a decimal number")
+                if len(t.string) > MAX_LITERAL:
+                    raise self.error(table, entry, f"number {t.string[:20]}... has more than {MAX_LITERAL} characters")
+                mantissa = t.string.lower().split("e")[0]
+                problem = _double_problem(float(t.string), nonzero=any(c in "123456789" for c in mantissa))
+                if problem:
+                    raise self.error(table, entry, f"number {t.string} in {value!r} {problem}")
                 pieces.append(t.string)
             elif t.type == tokenize.OP and t.string in OPERATORS:
                 pieces.append("**" if t.string == "^" else t.string)
@@ -293,6 +464,8 @@ class _Parser:
                                                "+ - * / ** ^ and parentheses only)")
         if not pieces:
             raise self.error(table, entry, "empty expression")
+        if len(pieces) > MAX_NODES:
+            raise self.error(table, entry, f"{value[:40]!r}... has {len(pieces)} terms and operations; at most {MAX_NODES}")
         local = {**{k: v for k, v in FUNCTIONS.items()}, **self.symbols}
         glob = {"__builtins__": {}, "Integer": sympy.Integer, "Float": sympy.Float, "Rational": sympy.Rational,
                 "Add": sympy.Add, "Mul": sympy.Mul, "Pow": sympy.Pow,
@@ -301,12 +474,33 @@ class _Parser:
             tree = parse_expr(" ".join(pieces), local_dict=local, global_dict=glob, evaluate=False)
         except Exception as e:  # sympy reports malformed input with several exception types
             raise self.error(table, entry, f"{value!r} is not an expression ({type(e).__name__})") from None
-        for node in sympy.preorder_traversal(tree):       # 9**9**9 would take forever to evaluate exactly
-            if isinstance(node, sympy.Pow) and node.exp.is_number and not abs(node.exp.evalf(15)) <= MAX_EXPONENT:
-                raise self.error(table, entry, f"{value!r}: an exponent {node.exp} beyond +-{MAX_EXPONENT}")
-        result = tree.doit()
+        if not isinstance(tree, sympy.Expr):
+            raise self.error(table, entry, f"{value!r} is not an expression")
+        nodes = sum(1 for _ in sympy.preorder_traversal(tree))
+        if nodes > MAX_NODES:
+            raise self.error(table, entry, f"{value!r} has {nodes} terms and operations; at most {MAX_NODES}")
+        problem = _exponent_problem(tree, 1)             # 9**9**9, ((q+1)**1000)**1000: forever to evaluate
+        if problem is None:
+            try:
+                _constant(tree)                          # exp(exp(exp(1000))), 9**1000: not a double
+            except _NotADouble as e:
+                problem = str(e)
+        if problem:
+            raise self.error(table, entry, f"{value!r}: {problem}")
+        result = None
+        with time_limit(SYMBOLIC_SECONDS) as limit:
+            result = tree.doit()
+        if limit.expired:
+            raise self.error(table, entry, f"{value!r} takes longer than {SYMBOLIC_SECONDS:g} s to evaluate")
         if not isinstance(result, sympy.Expr) or result.has(sympy.zoo, sympy.nan, sympy.oo, sympy.I):
             raise self.error(table, entry, f"{value!r} is not a finite real expression")
+        for node in sympy.preorder_traversal(result):
+            if isinstance(node, sympy.Pow) and node.exp.is_number and not abs(node.exp) <= MAX_EXPONENT:
+                raise self.error(table, entry, f"{value!r}: the power {_text(node)} has an exponent beyond +-{MAX_EXPONENT}")
+        try:
+            _constant(result)                  # sympy's form too: exp(q + 1000) becomes 1.97e434*exp(q)
+        except _NotADouble as e:
+            raise self.error(table, entry, f"{value!r} (evaluated: {str(result)[:80]}): {e}") from None
         return result
 
     def allowed_text(self, allowed: set[sympy.Symbol]) -> str:
@@ -356,6 +550,9 @@ class _Parser:
         G_e = self.matrix("model", "G_e", table["G_e"], (e, e), par)
         domain, margins, texts = self.domain(table.get("domain", []))
         self.margins = margins
+        for entry, value in (("M", M), ("V", V), ("Psi", Psi), ("R_m", R_m), ("J_e", J_e), ("R_e", R_e), ("G_e", G_e),
+                             *((f"domain[{i}]", g) for i, g in enumerate(margins))):
+            self.finite_at_defaults(entry, value)
         self.constant_checks(R_m, J_e, R_e, G_e)
         self.symmetric("M", M)
         self.positive_definite("M", M, "M(q) > 0 (mass-inertia matrix)")
@@ -380,6 +577,14 @@ class _Parser:
                                                "(the range |u_i| <= u_max_i)")
         return tuple(float(v) for v in values)
 
+    def finite_at_defaults(self, entry: str, value: Any) -> None:
+        """No pole (division by zero) and no non-real value at the default parameter values."""
+        at = value.subs(self.defaults)
+        if at.has(sympy.zoo, sympy.nan, sympy.oo, sympy.I):
+            where = ", ".join(f"{s} = {v:.6g}" for s, v in self.defaults.items() if s in value.free_symbols)
+            raise self.error("model", entry, f"is not finite at the default parameter values ({where}): "
+                                             f"{value} becomes {at} (a pole?)")
+
     def domain(self, entries: Any) -> tuple[tuple, tuple, tuple]:
         if not isinstance(entries, list) or not all(isinstance(s, str) for s in entries):
             raise self.error("model", "domain", "must be a list of strict inequalities such as \"q < c\"")
@@ -403,15 +608,15 @@ class _Parser:
 
     def constant_checks(self, R_m, J_e, R_e, G_e) -> None:
         scale = lambda A: max(1.0, float(np.max(np.abs(A))))  # noqa: E731
-        if not self.is_zero_matrix(R_m - R_m.T):
+        if not self.is_zero_matrix(R_m - R_m.T, "R_m"):
             raise self.error("model", "R_m", f"{R_m.tolist()} is not symmetric (mechanical damping)")
         lam = np.linalg.eigvalsh(self.numeric(R_m))
         if np.min(lam) < -1e-12 * scale(lam):
             raise self.error("model", "R_m", f"is not positive semi-definite at the default parameters "
                                              f"(smallest eigenvalue {np.min(lam):.6g}; mechanical damping R_m >= 0)")
-        if not self.is_zero_matrix(J_e + J_e.T):
+        if not self.is_zero_matrix(J_e + J_e.T, "J_e"):
             raise self.error("model", "J_e", f"{J_e.tolist()} is not skew-symmetric (J_e = -J_e^T)")
-        if not self.is_zero_matrix(R_e - R_e.T):
+        if not self.is_zero_matrix(R_e - R_e.T, "R_e"):
             raise self.error("model", "R_e", f"{R_e.tolist()} is not symmetric (electrical damping)")
         lam = np.linalg.eigvalsh(self.numeric(R_e))
         if np.min(lam) < -1e-12 * scale(lam):
@@ -423,40 +628,55 @@ class _Parser:
             raise self.error("model", "G_e", f"{G.tolist()} is singular at the default parameters "
                                              "(the input matrix G_e must be invertible)")
 
-    @staticmethod
-    def is_zero_matrix(A: sympy.Matrix) -> bool:
-        return all(sympy.simplify(a) == 0 for a in A)
+    def is_zero_matrix(self, A: sympy.Matrix, entry: str = "model") -> bool:
+        """Every entry simplifies to 0 (within SYMBOLIC_SECONDS, else a DescriptionError at `entry`)."""
+        result = False
+        with time_limit(SYMBOLIC_SECONDS) as limit:
+            result = all(a == 0 or sympy.simplify(a) == 0 for a in A)
+        if limit.expired:
+            raise self.error("model", entry, f"the symbolic identity check took longer than {SYMBOLIC_SECONDS:g} s "
+                                             "(SYMBOLIC_SECONDS); simplify the expressions")
+        return result
 
     def symmetric(self, entry: str, A: sympy.Matrix) -> None:
-        if not self.is_zero_matrix(A - A.T):
+        if not self.is_zero_matrix(A - A.T, entry):
             raise self.error("model", entry, f"{A.tolist()} is not symmetric")
 
     def positive_definite(self, entry: str, A: sympy.Matrix, what: str) -> None:
         """A > 0 on the domain: Sylvester's criterion decided by sympy under the domain's inequalities,
         otherwise at sample points of the domain at the default parameters (noted in `notes`)."""
-        minors = [A[:k, :k].det() for k in range(1, A.shape[0] + 1)]
-        decided = [self.sign_on_domain(d) for d in minors]
-        if all(d is True for d in decided):
+        minors: list[sympy.Expr] = []
+        decided: list[bool | None] = []
+        with time_limit(SYMBOLIC_SECONDS) as limit:
+            for k in range(1, A.shape[0] + 1):
+                minors.append(A[:k, :k].det())
+                decided.append(self.sign_on_domain(minors[-1]))
+                if decided[-1] is False:
+                    raise self.error("model", entry, f"violates {what}: the leading minor {k} "
+                                                     f"{minors[-1]} is not positive on the domain")
+        if not limit.expired and all(d is True for d in decided):
             self.notes.append(f"{entry}: {what}: decided symbolically")
             return
-        for k, d in enumerate(decided):
-            if d is False:
-                raise self.error("model", entry, f"violates {what}: the leading minor {k + 1} "
-                                                 f"{sympy.simplify(minors[k])} is not positive on the domain")
+        stopped = (f"the symbolic check (Sylvester's criterion) stopped at its time limit of {SYMBOLIC_SECONDS:g} s "
+                   f"after {len(decided)} of {A.shape[0]} minors; " if limit.expired else "")
         points = self.sample_points()
         if not points:
             raise self.error("model", entry, f"cannot check {what}: no sample point inside the domain "
                                              f"{list(self.margins)} at the default parameters")
         f = sympy.lambdify(self.q_sym, A.subs(self.defaults), "numpy")
         for qv in points:
-            a = np.array(f(*qv), dtype=float)
+            with np.errstate(all="ignore"):
+                a = np.array(f(*qv), dtype=float).reshape(A.shape)
+            if not np.all(np.isfinite(a)):
+                where = ", ".join(f"{s} = {v:.6g}" for s, v in zip(self.q_sym, qv))
+                raise self.error("model", entry, f"cannot check {what}: not finite at {where} (default parameters)")
             lam = np.linalg.eigvalsh(0.5 * (a + a.T))
             if not np.min(lam) > 0:
                 where = ", ".join(f"{s} = {v:.6g}" for s, v in zip(self.q_sym, qv))
                 raise self.error("model", entry, f"violates {what} at {where} (default parameters; smallest "
                                                  f"eigenvalue {np.min(lam):.6g})")
-        self.notes.append(f"{entry}: {what}: not decided by sympy; checked at {len(points)} sample points of the "
-                          "domain at the default parameters")
+        self.notes.append(f"{entry}: {what}: {stopped or 'not decided by sympy; '}checked at {len(points)} sample "
+                          "points of the domain at the default parameters")
 
     def sign_on_domain(self, expr: sympy.Expr) -> bool | None:
         """True / False when sympy decides expr > 0 for every q in the domain and every admissible parameter."""
@@ -522,13 +742,13 @@ class _Parser:
             Gamma = self.matrix("model", "Gamma", table["Gamma"], (self.n_m, self.n_e), par)
             phi = self.expr("model", "phi", table["phi"], par | x)
             grad_phi = sympy.Matrix([sympy.diff(phi, xi) for xi in self.x_sym])
-            if not self.is_zero_matrix(grad_q + Gamma * grad_phi):
+            if not self.is_zero_matrix(grad_q + Gamma * grad_phi, "Gamma"):
                 raise self.error("model", "Gamma", "grad_q H_e = -Gamma grad phi(x_e) (Assumption 2, eq. assHereg) does "
                                                    f"not hold: grad_q H_e = {list(grad_q)}")
             self.notes.append("Gamma, phi: given; grad_q H_e = -Gamma grad phi checked symbolically")
             return Gamma, phi, "given"
         dPsi = [Psi.diff(qk) for qk in self.q_sym]
-        affine = all(self.is_zero_matrix(D.diff(ql)) for D in dPsi for ql in self.q_sym)
+        affine = all(self.is_zero_matrix(D.diff(ql), "Psi") for D in dPsi for ql in self.q_sym)
         diagonal = all(D[i, j] == 0 or sympy.simplify(D[i, j]) == 0
                        for D in dPsi for i in range(self.n_e) for j in range(self.n_e) if i != j)
         if not (affine and diagonal):
@@ -537,7 +757,7 @@ class _Parser:
         Gamma = sympy.Matrix(self.n_m, self.n_e, lambda k, i: sympy.simplify(-dPsi[k][i, i] / 2))   # Sec. 7.2
         phi = sum((xi ** 3 / 3 for xi in self.x_sym), sympy.Integer(0))                           # Sec. 7.2
         grad_phi = sympy.Matrix([xi ** 2 for xi in self.x_sym])
-        assert self.is_zero_matrix(grad_q + Gamma * grad_phi)          # eq. (assHereg), by construction
+        assert self.is_zero_matrix(grad_q + Gamma * grad_phi, "Psi")   # eq. (assHereg), by construction
         self.notes.append("Gamma, phi: derived (Psi affine in q, diagonal dPsi/dq_k): Gamma[k][i] = -dPsi_ii/dq_k / 2, "
                           "phi = sum x_e_i^3 / 3")
         return Gamma, phi, "derived"

@@ -29,12 +29,14 @@ import numpy as np
 import sympy
 from scipy import optimize
 
+from .bounded import time_limit
 from .certificates import FAILS, HOLDS, max_eig, min_eig, reference_period
 from .device import DESIGNS
 from .ph_plant import Jet
 from .references import Constant, Reference, Sinusoid, SmoothStep
 
 NOT_DECIDED = "not decided"
+NOT_FINITE = "not finite"          # the start of the reason where a number of a numeric test overflowed
 ASSUMPTION_OF = {"Proposition1": "Assumption 1", "Proposition2": "Assumption 2",
                  "Theorem2": "Assumption 3", "Theorem3": "Assumption 4"}
 TIMES = 21          # sampled times of a reference
@@ -161,21 +163,39 @@ def exact(value: float) -> sympy.Rational:
     return sympy.Rational(repr(float(value)))
 
 
-def positive_definite(A: sympy.Matrix) -> bool | None:
+def positive_definite(A: sympy.Matrix, stopped: list[str] | None = None) -> bool | None:
     """Sylvester's criterion: True when sympy proves every leading principal minor > 0, False when one is
-    proven <= 0, None when sympy cannot decide."""
+    proven <= 0, None when sympy cannot decide (or not within SYMBOLIC_SECONDS: then `stopped` gets a note)."""
+    from .description import SYMBOLIC_SECONDS
+
     decided: list[bool | None] = []
-    for k in range(1, A.shape[0] + 1):
-        minor = sympy.simplify(A[:k, :k].det())
-        positive = minor.is_positive
-        if positive is False:
-            return False
-        decided.append(positive)
+    with time_limit(SYMBOLIC_SECONDS) as limit:
+        for k in range(1, A.shape[0] + 1):
+            minor = sympy.simplify(A[:k, :k].det())
+            positive = minor.is_positive
+            if positive is False:
+                return False
+            decided.append(positive)
+    if limit.expired:
+        if stopped is not None:
+            stopped.append(f"; the symbolic check stopped at its time limit of {SYMBOLIC_SECONDS:g} s (SYMBOLIC_SECONDS)")
+        return None
     return True if all(d is True for d in decided) else None
 
 
 def _is_zero(e: sympy.Expr) -> bool:
-    return e == 0 or sympy.simplify(e) == 0
+    """e == 0 identically; ValueError if sympy cannot tell within SYMBOLIC_SECONDS."""
+    from .description import SYMBOLIC_SECONDS
+
+    if e == 0:
+        return True
+    result = False
+    with time_limit(SYMBOLIC_SECONDS) as limit:
+        result = sympy.simplify(e) == 0
+    if limit.expired:
+        raise ValueError(f"the symbolic identity check of {str(e)[:80]} = 0 took longer than {SYMBOLIC_SECONDS:g} s "
+                         "(SYMBOLIC_SECONDS); simplify the description's expressions")
+    return result
 
 
 def _numbers(values: Any) -> str:
@@ -195,6 +215,11 @@ class Model:
             raise ValueError(f"{desc.source}: unknown parameter(s) {sorted(unknown)}; known: {list(desc.parameters)}")
         self.values = {n: desc.parameters[n].check(given.get(n, p.default), desc.name) for n, p in desc.parameters.items()}
         self.exact_values = {s: exact(self.values[s.name]) for s in desc.parameter_symbols}
+        for entry in ("M", "V", "Psi", "R_m", "J_e", "R_e", "G_e"):
+            at = self.at_values(getattr(desc, entry))
+            if at.has(sympy.zoo, sympy.nan, sympy.oo, sympy.I):
+                raise ValueError(f"{desc.source}: [model] {entry}: not finite at the parameter values "
+                                 f"{self.values} (a pole?): {at}")
         self.q, self.p, self.x = desc.q_symbols, desc.p_symbols, desc.x_e_symbols
         self.n_m, self.n_e = len(self.q), len(self.x)
         xv = sympy.Matrix(self.x)
@@ -249,7 +274,10 @@ class Model:
         return np.asarray(self.numeric("M", self.desc.M, self.q)(*q), dtype=float) @ qd
 
     def electrical_state(self, q: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """A real x_e with grad_q H_e(q, x_e) = b, numerically; (None, why) if there is none (or none was found)."""
+        """A real x_e with grad_q H_e(q, x_e) = b, numerically; (None, why) if there is none (or none was found);
+        (None, NOT_FINITE + why) where the numbers are not finite (overflow): no verdict from them."""
+        if not np.all(np.isfinite(b)) or not np.all(np.isfinite(q)):
+            return None, f"{NOT_FINITE}: the required force {_numbers(b)} at q = {_numbers(q)}"
         if self.diagonal:
             A = np.asarray(self.numeric("A", self.A, self.q)(*q), dtype=float).reshape(self.n_m, self.n_e)
             if self.n_e > self.n_m and self.psi_diagonal:       # the operating-point rule (n_e > n_m)
@@ -269,6 +297,8 @@ class Model:
                     if res > tol:
                         return None, f"no w = x_e^2 >= 0 solves A(q) w = b (nnls residual {res:.3g})"
                     how = "x_e_i^2 = w_i >= 0 from nnls on A(q) w = b (not unique: n_e != n_m)"
+            if not np.all(np.isfinite(w)):
+                return None, f"{NOT_FINITE}: x_e^2 = w = {_numbers(w)} (A(q) = {_numbers(A.ravel())})"
             if np.any(w < 0):
                 return None, f"x_e^2 = w = {_numbers(w)} has a negative entry: no real x_e"
             return self.sign * np.sqrt(w), how
@@ -316,8 +346,11 @@ class Model:
         rng = np.random.default_rng(25)
         for size in np.logspace(-6, 3, SOLVE_STARTS):
             x0 = self.sign * size * (1.0 + 0.1 * rng.standard_normal(self.n_e))
-            sol = optimize.least_squares(lambda x: (np.asarray(g(*q, *x), dtype=float).ravel() - b) / scale, x0,
-                                         xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            try:
+                sol = optimize.least_squares(lambda x: (np.asarray(g(*q, *x), dtype=float).ravel() - b) / scale, x0,
+                                             xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            except ValueError:                      # residuals not finite at the start: try the next size
+                continue
             if np.linalg.norm(sol.fun) < 1e-10:
                 return sol.x, f"least squares from {SOLVE_STARTS} starts (dPsi/dq_k not all diagonal)"
         return None, f"no solution found by least squares from {SOLVE_STARTS} starts (not a proof that none exists)"
@@ -379,7 +412,7 @@ def check_setpoint(model: Model, q_d: list[float] | None) -> tuple[Verdict, list
     qv = np.array(q_d, dtype=float)
     x_num, how = model.electrical_state(qv, -np.asarray(model.numeric("grad_V", model.grad_V, model.q)(*qv),
                                                          dtype=float).ravel())
-    found = HOLDS if x_num is not None else (FAILS if model.diagonal else NOT_DECIDED)
+    found = HOLDS if x_num is not None else (FAILS if model.diagonal and not how.startswith(NOT_FINITE) else NOT_DECIDED)
     v.tests.append(Test(cond, found, "numerically: " + how, "" if x_num is None else f"x_e_d = {_numbers(x_num)}"))
     return v, None, None if outside else x_num
 
@@ -459,7 +492,7 @@ def check_reference(model: Model, reference: Any, horizon: float | None,
                         f"outside at t = {_numbers(outside[:5])} s" if outside else ""))
     if infeasible:
         t0, why = infeasible[0]
-        verdict = FAILS if model.diagonal else NOT_DECIDED
+        verdict = FAILS if model.diagonal and not any(w.startswith(NOT_FINITE) for _, w in infeasible) else NOT_DECIDED
         v.tests.append(Test("real x_e*(t) with grad_q H_e(q*, x_e*) = -(p*' + R_m q*' + grad V + grad_q T)", verdict,
                             f"numerically at {what}",
                             f"none at {len(infeasible)} of {len(ts)} times, first t = {t0:.6g} s: {why}"))
@@ -483,11 +516,13 @@ def _decide(A: sympy.Matrix, model: Model, at: Mapping[sympy.Symbol, Any], what:
     """A > 0 symbolically for every admissible parameter value (the parameters' conditions as sympy
     assumptions), else exactly at the parameter values. `symbolic` is False when `at` holds numbers computed
     at the parameter values (x_e_d): then only the exact evaluation is consistent."""
+    stopped: list[str] = []
     if symbolic:
-        decided = positive_definite(A.subs(at))
+        decided = positive_definite(A.subs(at), stopped)
         if decided is not None:
             return decided, f"symbolic for every admissible parameter value{what}"
-    return positive_definite(model.at_values(A).subs(at)), f"exact at the parameter values{what}"
+    decided = positive_definite(model.at_values(A).subs(at), stopped)
+    return decided, f"exact at the parameter values{what}{''.join(stopped[-1:])}"
 
 
 def R_m_test(model: Model) -> Test:
@@ -579,7 +614,10 @@ def hess_phi_at(model: Model, x_e: Sequence[Any], exactly: bool) -> tuple[bool |
         ok, how = _decide(H, model, dict(zip(model.x, x_e)), "", symbolic=False)
         value = np.array(model.at_values(H).subs(dict(zip(model.x, x_e))).evalf(), dtype=float)
         return ok, min_eig(value), how
-    value = np.array(model.numeric("hess_phi", H, model.x)(*x_e), dtype=float).reshape(model.n_e, model.n_e)
+    with np.errstate(all="ignore"):
+        value = np.array(model.numeric("hess_phi", H, model.x)(*x_e), dtype=float).reshape(model.n_e, model.n_e)
+    if not np.all(np.isfinite(value)):
+        return None, math.nan, "numerically (hess phi not finite there)"
     lam = min_eig(value)
     return bool(lam > 0), lam, "numerically"
 
@@ -682,9 +720,19 @@ def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
         return v
     f = model.numeric("cond1T2", block, (*model.q, *model.p, *model.x))
     lo, hi = np.inf, -np.inf
+    bad: list[np.ndarray] = []                  # samples where the block is not finite: no NaN may "win" min/max
     for eta in points:
-        B = np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(2 * m, 2 * m)
+        with np.errstate(all="ignore"):
+            B = np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(2 * m, 2 * m)
+        if not np.all(np.isfinite(B)):
+            bad.append(eta)
+            continue
         lo, hi = min(lo, min_eig(B)), max(hi, max_eig(B))
+    if bad:
+        v.tests.append(Test(cond, NOT_DECIDED, "numerically over S (see the box)",
+                            f"the block is not finite (overflow, 0/0) at {len(bad)} of {len(points)} samples, first at "
+                            f"eta = {_numbers(bad[0])}: no sampled verdict"))
+        return v
     v.tests.append(Test(cond, HOLDS if lo > 0 else FAILS, "numerically over S (see the box)",
                         f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"))
     return v
@@ -698,6 +746,11 @@ def assumption_4(model: Model, structure: list[Test], trajectory: Trajectory | N
     cond = "hess phi(x_e*(t)) > 0 along the reference"
     if trajectory is not None and trajectory.eta:
         lams = [hess_phi_at(model, list(eta[2 * model.n_m:]), False)[1] for eta in trajectory.eta]
+        if not all(math.isfinite(lam) for lam in lams):
+            k = next(i for i, lam in enumerate(lams) if not math.isfinite(lam))
+            v.tests.append(Test(cond, NOT_DECIDED, f"numerically at the {len(lams)} feasible time(s) of the "
+                                f"{trajectory.description}", f"hess phi not finite at t = {trajectory.feasible_times[k]:.6g} s"))
+            return v
         k = int(np.argmin(lams))
         v.tests.append(Test(cond, HOLDS if lams[k] > 0 else FAILS,
                             f"numerically at the {len(lams)} feasible time(s) of the {trajectory.description}",

@@ -468,7 +468,7 @@ def build_description(description: Path | str, dest: Path | str, designs: Sequen
     if designs is None:
         designs = plant_check.check(desc).designs
     with tempfile.TemporaryDirectory(prefix="emcosim_description_", dir=temp_root) as tmp:
-        module = Path(tmp) / f"{description.stem.lower()}_model.py"
+        module = Path(tmp) / f"{desc.name.lower()}_model.py"    # a checked identifier, not the file's name
         module.write_text(codegen.module_source(desc, description.name))
         resource = Path(tmp) / Path(DESCRIPTION_RESOURCE).name
         shutil.copyfile(description, resource)
@@ -529,9 +529,14 @@ def variables_markdown(paths: dict[str, Path]) -> str:
             extra = ""
             if v.name in deps:
                 extra = " (depends on: " + (", ".join(d.name for d in deps[v.name]) or "nothing") + ")"
-            parts.append(f"| {v.name} | {v.causality} | {start} | {v.unit or ''} | {v.description}{extra} |")
+            parts.append(f"| {v.name} | {v.causality} | {start} | {_cell(v.unit or '')} | {_cell(v.description)}{extra} |")
         parts.append("")
     return "\n".join(parts)
+
+
+def _cell(text: str | None) -> str:
+    """Text as one Markdown table cell: | escaped, no line breaks."""
+    return " ".join(str(text or "").replace("|", "\\|").split())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -104,13 +104,14 @@ def cmd_check(args) -> int:
     if args.json:
         check_destination(Path(args.json))
     try:
+        reference_of = None
+        if args.reference:
+            references = _references(args.reference)
+
+            def reference_of(desc):
+                return StackedReference(reference_components(desc.q, references, desc.name))
         with description_file(args.file, args.operating_point) as file:
-            reference = None
-            if args.reference:
-                from components import description as descriptions
-                desc = descriptions.load(file)
-                reference = StackedReference(reference_components(desc.q, _references(args.reference), desc.name))
-            desc, report, device = registry.load(file, q_d=args.q_d, reference=reference, horizon=args.horizon)
+            desc, report, device = registry.load(file, q_d=args.q_d, horizon=args.horizon, reference_of=reference_of)
             from .start import attach
             attach(report, device, desc, references=_references(args.reference), q_0=args.q0, p_0=args.p0,
                    x_e_0=args.x_e0, gains=q_d_gains(device, args.q_d))

@@ -13,19 +13,40 @@ from components.device import Device
 from fmus.build import DESCRIPTION_RESOURCE  # noqa: F401 - where `emcosim plant build` puts the file in an FMU
 
 
-def load(path: str | Path, q_d=None, reference=None, horizon: float | None = None):
+def load(path: str | Path, q_d=None, reference=None, horizon: float | None = None, reference_of=None):
     """(description, check report, device) of a description file; the device has the designs the check
-    finds applicable. DescriptionError (a ValueError) names a wrong entry."""
+    finds applicable. DescriptionError (a ValueError) names a wrong entry. `reference_of(desc)`, if given,
+    makes the reference from the parsed description.
+
+    The file is parsed and checked, and the model module generated, in a worker process
+    (components.bounded.in_worker): a signal or the time limit stops it even inside C; this process only
+    executes the generated source (names checked, text as string literals)."""
+    return _checked(str(path), None, q_d, reference, horizon, reference_of)
+
+
+def _checked(path: str | None, text: tuple[str, str] | None, q_d=None, reference=None, horizon: float | None = None,
+             reference_of=None):
+    from components import bounded, codegen, plant_check  # noqa: F401 - imported before the fork: the worker imports nothing
+
+    desc, report, source = bounded.in_worker(_parse_and_check, path, text, q_d, reference, horizon, reference_of,
+                                             what=f"{path or text[1]}: parsing and checking")
+    return desc, report, codegen.device(desc, list(report.designs), source)
+
+
+def _parse_and_check(path: str | None, source_or_text: tuple[str, str] | None, q_d, reference, horizon, reference_of):
+    """In the worker: (description, report, generated module source)."""
+    from components import codegen, plant_check
     from components import description as descriptions
 
-    return _checked(descriptions.load(path), q_d, reference, horizon)
-
-
-def _checked(desc, q_d=None, reference=None, horizon: float | None = None):
-    from components import codegen, plant_check
-
+    if path is not None:
+        desc = descriptions.load(path)
+    else:
+        text, source = source_or_text or ("", "")
+        desc = descriptions.parse(text, source)
+    if reference_of is not None:
+        reference = reference_of(desc)
     report = plant_check.check(desc, q_d=q_d, reference=reference, horizon=horizon)
-    return desc, report, codegen.device(desc, list(report.designs))
+    return desc, report, codegen.module_source(desc, Path(desc.source).name)
 
 
 def register_description(path: str | Path) -> Device:
@@ -59,6 +80,4 @@ def register_fmu(fmu: str | Path) -> Device | None:
             text = z.read(DESCRIPTION_RESOURCE).decode("utf-8")
     except (OSError, zipfile.BadZipFile, UnicodeDecodeError):
         return None
-    from components import description as descriptions
-
-    return _register(*_checked(descriptions.parse(text, f"{fmu}:{DESCRIPTION_RESOURCE}")))
+    return _register(*_checked(None, (text, f"{fmu}:{DESCRIPTION_RESOURCE}")))

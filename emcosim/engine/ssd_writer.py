@@ -180,4 +180,9 @@ def _esc(s: str) -> str:
 
 
 def _comment(s: str) -> str:
-    return " ".join(str(s).replace("--", "- -").split())
+    """Text for an XML comment: no "--" (which would end or break it, even after one replacement: "--->"),
+    not ending in "-", on one line."""
+    text = " ".join(str(s).split())
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return text + " " if text.endswith("-") else text

@@ -1,0 +1,188 @@
+"""Native plant FMUs (fmus/native_build.py): C from the description, the framework of fmus/native/.
+
+Truths: fmpy's validation; the pythonfmu twin (build/fmus), run in the same way through fmpy, at random
+states and inputs; the FMI 2.0 state machine (FMI 2.0, section 3.2.3); ldd.
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Model
+from fmpy.validation import validate_fmu
+
+from fmus.native_build import GENERATOR, build_native
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+PLANTS = ("MEMS", "Maglev")
+DISCARD, ERROR = 2, 3
+
+
+@pytest.fixture(scope="module")
+def native(tmp_path_factory) -> dict[str, Path]:
+    dest = tmp_path_factory.mktemp("native")
+    return {name: build_native(name, dest) for name in PLANTS}
+
+
+def test_validate_and_self_contained(native) -> None:
+    for name, path in native.items():
+        assert validate_fmu(str(path)) == []
+        md = read_model_description(str(path))
+        assert md.coSimulation is None and md.modelExchange.needsExecutionTool is False
+        assert md.generationTool == GENERATOR
+        with zipfile.ZipFile(path) as z:
+            names = set(z.namelist())
+            listed = {f.get("name") for f in ElementTree.fromstring(z.read("modelDescription.xml")).iter("File")}
+        assert listed and all(f"sources/{f}" in names for f in listed)
+        folder = Path(extract(str(path)))
+        ldd = subprocess.run(["ldd", str(folder / "binaries" / "linux64" / f"{name}.so")], capture_output=True,
+                             text=True, check=True).stdout
+        assert "libpython" not in ldd and "libc.so" in ldd
+
+
+def _strip(element: ElementTree.Element) -> list:
+    return [(e.tag, sorted(e.attrib.items())) for e in element.iter()]
+
+
+def test_same_interface_as_the_twin(native, fmus) -> None:
+    """Variables (names, value references, units, descriptions, starts, nominals), units, ModelStructure and
+    DefaultExperiment are the twin's, element by element."""
+    for name, path in native.items():
+        roots = []
+        for fmu in (path, fmus[name]):
+            with zipfile.ZipFile(fmu) as z:
+                roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
+        for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions"):
+            assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), (name, tag)
+        twin_me = roots[1].find("ModelExchange").attrib
+        me = roots[0].find("ModelExchange").attrib
+        assert {k: v for k, v in me.items() if k != "needsExecutionTool"} == \
+            {k: v for k, v in twin_me.items() if k != "needsExecutionTool"}
+
+
+class Instance:
+    """An ME instance through fmpy, initialized, in continuous-time mode."""
+
+    def __init__(self, path: Path, name: str):
+        md = read_model_description(str(path))
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        self.fmu = FMU2Model(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=name, instanceName=name)
+        self.fmu.instantiate()
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+        self.fmu.newDiscreteStates()
+        self.fmu.enterContinuousTimeMode()
+
+    def at(self, eta: np.ndarray, u: float) -> dict[str, np.ndarray]:
+        self.fmu.setReal([self.vr["u"]], [u])
+        self.fmu.setContinuousStates(eta.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 3)
+        dx = np.zeros(3)
+        self.fmu.getDerivatives(dx.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 3)
+        names = ["q", "p", "x_e", "H", "der(q)", "der(p)", "der(x_e)"]
+        out = {"dx": dx, "real": np.array(self.fmu.getReal([self.vr[n] for n in names]))}
+        knowns = [self.vr[n] for n in ("q", "p", "x_e", "u")]
+        unknowns = [self.vr[n] for n in ("der(q)", "der(p)", "der(x_e)", "H")]
+        out["jac"] = np.array([self.fmu.getDirectionalDerivative(unknowns, knowns, list(seed))
+                               for seed in np.eye(4)])
+        z = np.zeros(1)
+        self.fmu.getEventIndicators(z.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 1)
+        nominal = np.zeros(3)
+        self.fmu.getNominalsOfContinuousStates(
+            nominal.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 3)
+        out["z"], out["nominal"] = z, nominal
+        return out
+
+    def close(self) -> None:
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+@pytest.mark.parametrize("name", PLANTS)
+def test_equal_to_the_twin_at_random_states(native, fmus, name) -> None:
+    from components.catalog import DEVICES
+    from components.plant_step import nominal_scale
+    plant = DEVICES[name].plant()
+    scale = nominal_scale(plant)
+    rng = np.random.default_rng(7)
+    a, b = Instance(native[name], name), Instance(fmus[name], name)
+    try:
+        count = 0
+        while count < 25:
+            eta = np.array([rng.uniform(-1.5, 1.5), rng.uniform(-3, 3), rng.uniform(-3, 3)]) * scale
+            if not plant.domain_margin(eta) > 0:
+                continue
+            count += 1
+            u = float(rng.uniform(-30, 30))
+            got, want = a.at(eta, u), b.at(eta, u)
+            for key in want:
+                w = np.asarray(want[key], dtype=float)
+                np.testing.assert_allclose(got[key], w, rtol=1e-12, atol=1e-14 * float(np.max(np.abs(w))),
+                                           err_msg=f"{name} {key} at {eta}, u = {u}")
+    finally:
+        a.close()
+        b.close()
+
+
+def test_state_machine_and_bad_values(native) -> None:
+    """Calls outside the state machine and non-finite or out-of-domain values: fmi2Error (fmi2Discard for
+    derivatives that are not finite), the instance still usable."""
+    md = read_model_description(str(native["MEMS"]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Model(guid=md.guid, unzipDirectory=extract(str(native["MEMS"])), modelIdentifier="MEMS", instanceName="m")
+    fmu.instantiate()
+    ptr = np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)
+    x = np.array([1e-6, 0.0, 0.0])
+
+    def status(call) -> int:
+        try:
+            call()
+        except FMICallException as exc:
+            return exc.status
+        return 0
+
+    assert status(lambda: fmu.setContinuousStates(x.ctypes.data_as(ptr), 3)) == ERROR       # before initialization
+    assert status(lambda: fmu.getDerivatives(x.ctypes.data_as(ptr), 3)) == ERROR
+    assert status(lambda: fmu.getReal([vr["q"]])) == ERROR
+    assert status(lambda: fmu.setReal([vr["m"]], [float("nan")])) == ERROR
+    assert status(lambda: fmu.setReal([999], [1.0])) == ERROR
+    assert status(lambda: fmu.setReal([vr["q"]], [1.0])) == ERROR                              # an output
+    assert status(lambda: fmu.setReal([vr["c1"]], [-1.0])) == 0                               # checked at exit
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    assert status(lambda: fmu.exitInitializationMode()) == ERROR                              # c1 > 0
+    fmu.setReal([vr["c1"]], [35.6e-9])
+    fmu.exitInitializationMode()
+    assert status(lambda: fmu.setReal([vr["c1"]], [1.0])) == ERROR                           # fixed after init
+    fmu.newDiscreteStates()
+    fmu.enterContinuousTimeMode()
+    bad = np.array([float("nan"), 0.0, 0.0])
+    assert status(lambda: fmu.setContinuousStates(bad.ctypes.data_as(ptr), 3)) == ERROR
+    edge = np.array([-15e-6, 0.0, 1e-10])                                                     # q = -c0: Psi infinite
+    fmu.setContinuousStates(edge.ctypes.data_as(ptr), 3)
+    dx = np.zeros(3)
+    assert status(lambda: fmu.getDerivatives(dx.ctypes.data_as(ptr), 3)) == DISCARD
+    fmu.enterEventMode()
+    assert status(lambda: fmu.newDiscreteStates()) == ERROR                                   # outside the domain
+    c = np.ctypeslib.ctypes
+    assert fmu.dll.fmi2DoStep(c.c_void_p(fmu.component), c.c_double(0.0), c.c_double(1e-6), c.c_int(1)) == ERROR   # ME only
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_fmpy_simulates_as_model_exchange(native, fmus) -> None:
+    """fmpy's CVode runs both forms from the DefaultExperiment to the same trajectory."""
+    from fmpy import simulate_fmu
+    for name in PLANTS:
+        runs = [simulate_fmu(str(p), fmi_type="ModelExchange", relative_tolerance=1e-8, stop_time=0.01 if name == "Maglev"
+                             else 1e-4) for p in (native[name], fmus[name])]
+        for key in ("q", "p", "x_e"):
+            scale = np.max(np.abs(runs[1][key])) or 1.0
+            assert np.max(np.abs(runs[0][key][-1] - runs[1][key][-1])) < 1e-6 * scale

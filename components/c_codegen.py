@@ -10,7 +10,7 @@ with `par` the description's parameters in their order, `eta` = (q, p, x_e), `u`
 the values, row-major for matrices:
 
     V (1), grad_V (n_m), hess_V (n_m^2), Psi (n_e^2), dPsi (n_m n_e^2), d2Psi (n_m^2 n_e^2), M_inv (n_m^2),
-    H (1), grad_H (n), f (n: eq. open-loop elecmech), jacobian (n^2: df/deta), g (n n_e: df/du),
+    H (1), grad_H (n), hess_H (n^2), f (n: eq. open-loop elecmech), jacobian (n^2: df/deta), g (n n_e: df/du),
     margin (1: the event indicator at the domain boundary, +INFINITY without one)
 
 and `emc_check_parameters(par)`: the index of the first parameter that violates its condition ("> 0",
@@ -31,7 +31,8 @@ from .description import Description
 from .parameters import HUGE, TINY
 from .symbolic import PlantExpressions, plant_expressions
 
-FUNCTIONS = ("V", "grad_V", "hess_V", "Psi", "dPsi", "d2Psi", "M_inv", "H", "grad_H", "f", "jacobian", "g", "margin")
+FUNCTIONS = ("V", "grad_V", "hess_V", "Psi", "dPsi", "d2Psi", "M_inv", "H", "grad_H", "hess_H", "f", "jacobian", "g",
+             "margin")
 
 
 class _Printer(C99CodePrinter):
@@ -67,7 +68,8 @@ def model_values(E: PlantExpressions) -> dict[str, list[sympy.Expr]]:
     return {
         "V": [E.V], "grad_V": list(E.grad_V), "hess_V": list(E.hess_V), "Psi": list(E.Psi),
         "dPsi": _flat(E.dPsi), "d2Psi": _flat(D for row in E.d2Psi for D in row), "M_inv": list(E.M_inv),
-        "H": [E.H], "grad_H": list(E.grad_H), "f": list(E.f), "jacobian": list(E.jacobian), "g": list(E.g),
+        "H": [E.H], "grad_H": list(E.grad_H), "hess_H": list(E.hess_H), "f": list(E.f),
+        "jacobian": list(E.jacobian), "g": list(E.g),
         "margin": [sympy.oo if margin is None else margin],
     }
 
@@ -119,7 +121,7 @@ class CWriter:
 DOCS = {
     "V": "potential energy V(q) [J]", "grad_V": "grad V(q)", "hess_V": "Hessian of V (row-major)",
     "Psi": "Psi(q) of eq. (elec energy)", "dPsi": "d Psi / d q_k (k major)", "d2Psi": "d^2 Psi / d q_k d q_l",
-    "M_inv": "M(q)^-1", "H": "H(eta) of eq. (open-loop elecmech)", "grad_H": "grad H(eta)",
+    "M_inv": "M(q)^-1", "H": "H(eta) of eq. (open-loop elecmech)", "grad_H": "grad H(eta)", "hess_H": "Hessian of H (row-major)",
     "f": "eta' = F grad H + g u, eq. (open-loop elecmech)", "jacobian": "df/deta = F hess H (row-major)",
     "g": "df/du = [0; 0; G_e] (row-major)", "margin": "the margin to the boundary of the admissible domain",
 }
@@ -167,6 +169,7 @@ EMC_MODEL_FUNCTION(d2Psi);
 EMC_MODEL_FUNCTION(M_inv);
 EMC_MODEL_FUNCTION(H);
 EMC_MODEL_FUNCTION(grad_H);
+EMC_MODEL_FUNCTION(hess_H);
 EMC_MODEL_FUNCTION(f);
 EMC_MODEL_FUNCTION(jacobian);
 EMC_MODEL_FUNCTION(g);

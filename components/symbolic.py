@@ -62,6 +62,11 @@ class PlantExpressions:
         return sympy.Matrix([self.H]).jacobian(list(self.eta)).T
 
     @property
+    def hess_H(self) -> sympy.Matrix:
+        """The Hessian of H (n x n): the output derivatives H'' = eta'^T hess H eta' + grad H . eta''."""
+        return sympy.hessian(self.H, list(self.eta))
+
+    @property
     def F(self) -> sympy.Matrix:
         """The structure matrix J - R of eq. (open-loop elecmech)."""
         d = self.desc

@@ -141,7 +141,7 @@ def build_native(identifier: str, dest: Path | str, description: Path | str | No
                                "n_m = n_e = 1 is generated yet (docs/native-fmus.md)")
     slave = _twin(identifier)
     model_c = model_c_source(desc)
-    native = Native(GENERATOR, SOURCE_FILES, co_simulation=False)
+    native = Native(GENERATOR, SOURCE_FILES, co_simulation=True)
     framework = "".join((NATIVE / f).read_text() for f in FRAMEWORK)
     root = model_description(slave, model_c + framework, OPTIONS, native)
     guid = root.get("guid")

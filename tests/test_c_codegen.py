@@ -64,14 +64,14 @@ def test_c_model_equals_python(tmp_path: Path, name: str) -> None:
     par = [plant.params[p] for p in desc.parameters]
     rng = np.random.default_rng(32)
     sizes = {"V": 1, "grad_V": 1, "hess_V": 1, "Psi": 1, "dPsi": 1, "d2Psi": 1, "M_inv": 1, "H": 1,
-             "grad_H": 3, "f": 3, "jacobian": 9, "g": 3, "margin": 1}
+             "grad_H": 3, "hess_H": 9, "f": 3, "jacobian": 9, "g": 3, "margin": 1}
     assert set(sizes) == set(FUNCTIONS)
     for eta in random_states(plant, rng, 50):
         u = [rng.uniform(-30, 30)]
         q = eta[:1]
         truth = {"V": plant.V(q), "grad_V": plant.grad_V(q), "hess_V": plant.hess_V(q), "Psi": plant.Psi(q),
                  "dPsi": plant.dPsi(q), "d2Psi": plant.d2Psi(q), "M_inv": plant.M_inv(q), "H": plant.H(eta),
-                 "grad_H": plant.grad_H(eta), "f": plant.f(eta, u), "jacobian": plant.jacobian(eta),
+                 "grad_H": plant.grad_H(eta), "hess_H": plant.hess_H(eta), "f": plant.f(eta, u), "jacobian": plant.jacobian(eta),
                  "g": plant.g(), "margin": plant.domain_margin(eta)}
         for fn, size in sizes.items():
             close(call(lib, fn, par, eta, u, size), truth[fn])

@@ -35,7 +35,7 @@ def test_validate_and_self_contained(native) -> None:
     for name, path in native.items():
         assert validate_fmu(str(path)) == []
         md = read_model_description(str(path))
-        assert md.coSimulation is None and md.modelExchange.needsExecutionTool is False
+        assert md.modelExchange.needsExecutionTool is False and md.coSimulation.needsExecutionTool is False
         assert md.generationTool == GENERATOR
         with zipfile.ZipFile(path) as z:
             names = set(z.namelist())
@@ -61,10 +61,11 @@ def test_same_interface_as_the_twin(native, fmus) -> None:
                 roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
         for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions"):
             assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), (name, tag)
-        twin_me = roots[1].find("ModelExchange").attrib
-        me = roots[0].find("ModelExchange").attrib
-        assert {k: v for k, v in me.items() if k != "needsExecutionTool"} == \
-            {k: v for k, v in twin_me.items() if k != "needsExecutionTool"}
+        for interface in ("ModelExchange", "CoSimulation"):
+            twin = roots[1].find(interface).attrib
+            mine = roots[0].find(interface).attrib
+            assert {k: v for k, v in mine.items() if k != "needsExecutionTool"} == \
+                {k: v for k, v in twin.items() if k != "needsExecutionTool"}
 
 
 class Instance:
@@ -172,7 +173,7 @@ def test_state_machine_and_bad_values(native) -> None:
     fmu.enterEventMode()
     assert status(lambda: fmu.newDiscreteStates()) == ERROR                                   # outside the domain
     c = np.ctypeslib.ctypes
-    assert fmu.dll.fmi2DoStep(c.c_void_p(fmu.component), c.c_double(0.0), c.c_double(1e-6), c.c_int(1)) == ERROR   # ME only
+    assert fmu.dll.fmi2DoStep(c.c_void_p(fmu.component), c.c_double(0.0), c.c_double(1e-6), c.c_int(1)) == ERROR   # a CS function
     fmu.terminate()
     fmu.freeInstance()
 
@@ -186,3 +187,96 @@ def test_fmpy_simulates_as_model_exchange(native, fmus) -> None:
         for key in ("q", "p", "x_e"):
             scale = np.max(np.abs(runs[1][key])) or 1.0
             assert np.max(np.abs(runs[0][key][-1] - runs[1][key][-1])) < 1e-6 * scale
+
+
+def test_co_simulation_equals_the_twin(native, fmus) -> None:
+    """fmpy runs both forms as Co-Simulation over their DefaultExperiment (Maglev 500 steps, MEMS 900 steps
+    at rtol 1e-8): the native RODAS4 (no closed-form electrical layer) and the twin's PlantStepper agree."""
+    from fmpy import simulate_fmu
+    for name in PLANTS:
+        runs = [simulate_fmu(str(p), fmi_type="CoSimulation") for p in (native[name], fmus[name])]
+        for key in ("q", "p", "x_e", "H"):
+            assert np.max(np.abs(runs[0][key] - runs[1][key])) <= 1e-9 * np.max(np.abs(runs[1][key])), (name, key)
+
+
+def slave(path: Path, name: str):
+    from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=name, instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, {v.name: v.valueReference for v in md.modelVariables}
+
+
+def test_co_simulation_polynomial_inputs_and_output_derivatives(native) -> None:
+    """Input polynomials of order 3 through fmi2SetRealInputDerivatives against scipy's Radau at 1e-11
+    (components.plant_step.simulate_polynomial); the output derivatives against ph_plant's numpy
+    time_derivatives at the input in force (the end of the last step's polynomial); FMU state round trip."""
+    from components.catalog import DEVICES
+    from components.plant_step import simulate_polynomial
+    plant = DEVICES["Maglev"].plant()
+    fmu, vr = slave(native["Maglev"], "Maglev")
+    eta0 = np.array(fmu.getReal([vr["q"], vr["p"], vr["x_e"]]))
+    h, inputs = 2e-3, [(1.0 + 0.1 * k, 30.0, -400.0, 5e3) for k in range(20)]
+    for k, (u, *rates) in enumerate(inputs):
+        fmu.setReal([vr["u"]], [u])
+        fmu.setRealInputDerivatives([vr["u"]] * 3, [1, 2, 3], rates)
+        fmu.doStep(k * h, h)
+    got = np.array(fmu.getReal([vr["q"], vr["p"], vr["x_e"]]))
+    want = simulate_polynomial(plant, eta0, h, inputs, rtol=1e-11)[-1]
+    from components.plant_step import nominal_scale
+    assert np.all(np.abs(got - want) <= 1e-7 * nominal_scale(plant))
+    u, du, d2u, d3u = inputs[-1]
+    u_end, du_end = u + h * (du + h * (d2u / 2 + h * d3u / 6)), du + h * (d2u + h * d3u / 2)
+    first, second, H1, H2 = plant.time_derivatives(got, [u_end], [du_end])
+    names = ["q", "p", "x_e", "H"]
+    for order, truth in ((1, [*first, H1]), (2, [*second, H2])):
+        values = fmu.getRealOutputDerivatives([vr[n] for n in names], [order] * 4)
+        np.testing.assert_allclose(values, truth, rtol=1e-12, atol=1e-14 * np.max(np.abs(truth)))
+    # FMU state: a step repeated from a saved (and a serialized) state is bit-identical
+    state = fmu.getFMUstate()
+    blob = fmu.serializeFMUstate(state)
+    t = len(inputs) * h
+    fmu.doStep(t, h)
+    first_try = fmu.getReal([vr["q"], vr["p"], vr["x_e"]])
+    fmu.setFMUstate(state)
+    fmu.doStep(t, h)
+    assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == first_try
+    restored = fmu.deSerializeFMUstate(blob)
+    fmu.setFMUstate(restored)
+    fmu.doStep(t, h)
+    assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == first_try
+    bad = bytearray(blob)
+    bad[-8:] = np.array([np.nan]).tobytes()                  # a non-finite entry: refused
+    with pytest.raises(FMICallException):
+        fmu.deSerializeFMUstate(bytes(bad))
+    fmu.freeFMUstate(state)
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_co_simulation_refusals(native) -> None:
+    """doStep at the wrong time, a step <= 0, an order out of range: fmi2Error; a state leaving the domain in a
+    step: fmi2Discard with the state kept; ME functions in a CS instance: fmi2Error."""
+    fmu, vr = slave(native["Maglev"], "Maglev")
+    c = np.ctypeslib.ctypes
+    me = fmu.dll.fmi2GetDerivatives
+    assert me(c.c_void_p(fmu.component), (c.c_double * 3)(), c.c_size_t(3)) == ERROR
+    for call in (lambda: fmu.doStep(1.0, 1e-3), lambda: fmu.doStep(0.0, 0.0),
+                 lambda: fmu.setRealInputDerivatives([vr["u"]], [0], [1.0]),
+                 lambda: fmu.setRealInputDerivatives([vr["q"]], [1], [1.0]),
+                 lambda: fmu.getRealOutputDerivatives([vr["q"]], [3])):
+        with pytest.raises(FMICallException) as info:
+            call()
+        assert info.value.status == ERROR
+    before = fmu.getReal([vr["q"], vr["p"], vr["x_e"]])
+    fmu.setReal([vr["u"]], [-2000.0])                          # pulls the flux down: the ball falls... and
+    fmu.setReal([vr["u"]], [2000.0])                           # pushes it up into the magnet at q = c
+    with pytest.raises(FMICallException) as info:
+        fmu.doStep(0.0, 0.5)
+    assert info.value.status == DISCARD
+    assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == before
+    fmu.terminate()
+    fmu.freeInstance()

@@ -129,17 +129,41 @@ def compile_sources(sources: Path, library: Path, cc: str = "gcc", extra: tuple[
         raise NativeBuildError(f"native FMUs: compiling failed:\n{' '.join(command)}\n{run.stderr}")
 
 
-def build_native(identifier: str, dest: Path | str, description: Path | str | None = None, cc: str = "gcc") -> Path:
-    """Build the native FMU `identifier` (a plant FMU of fmus.models) into dest/<identifier>.fmu."""
-    toml = Path(description) if description is not None else PAPER_PLANTS.get(identifier)
+def build_native(identifier: str, dest: Path | str, cc: str = "gcc") -> Path:
+    """Build the native form of the paper's plant FMU `identifier` (MEMS, Maglev) into dest/<identifier>.fmu."""
+    toml = PAPER_PLANTS.get(identifier)
     if toml is None:
-        raise NativeBuildError(f"native FMUs: {identifier} is not a plant FMU with a description "
-                               f"(known: {', '.join(PAPER_PLANTS)})")
-    desc = load(toml)
-    if desc.n_m != 1 or desc.n_e != 1:
-        raise NativeBuildError(f"native FMUs: {desc.name} has n_m = {desc.n_m}, n_e = {desc.n_e}; only "
-                               "n_m = n_e = 1 is generated yet (docs/native-fmus.md)")
-    slave = _twin(identifier)
+        raise NativeBuildError(f"native FMUs: {identifier} is not one of the paper's plant FMUs "
+                               f"({', '.join(PAPER_PLANTS)}); native controllers and the Reference are not generated yet")
+    return _build(_twin(identifier), load(toml), dest, cc)
+
+
+def build_native_description(description: Path | str, dest: Path | str, cc: str = "gcc") -> Path:
+    """Build the native plant FMU of a plant description file (TOML) into dest/<name>.fmu: its twin is the plant
+    FMU `emcosim plant build` makes (fmus.build.build_description: the same slave class, start values and
+    DefaultExperiment)."""
+    from components import codegen
+
+    from .build import load_device_module
+    from .models import device_slave_classes
+
+    description = Path(description).resolve()
+    desc = load(description)
+    with tempfile.TemporaryDirectory(prefix="emcosim_native_") as tmp:
+        module = Path(tmp) / f"{description.stem.lower()}_model.py"
+        module.write_text(codegen.module_source(desc, description.name))
+        cls = device_slave_classes(load_device_module(module), [])[desc.name]
+        with tempfile.TemporaryDirectory() as resources:
+            slave = cls(instance_name="native-build", resources=resources)
+    return _build(slave, desc, dest, cc)
+
+
+def _build(slave, desc: Description, dest: Path | str, cc: str) -> Path:
+    """The native FMU of the twin `slave` (a declared PlantSlave) and its description `desc`."""
+    identifier = slave.model_identifier
+    if not desc.constant_mass and desc.n_m > 3:
+        raise NativeBuildError(f"native FMUs: {desc.name}: M depends on q with n_m = {desc.n_m} > 3 (no symbolic "
+                               "inverse is generated)")
     model_c = model_c_source(desc)
     native = Native(GENERATOR, SOURCE_FILES, co_simulation=True)
     framework = "".join((NATIVE / f).read_text() for f in FRAMEWORK)

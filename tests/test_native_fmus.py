@@ -280,3 +280,78 @@ def test_co_simulation_refusals(native) -> None:
     assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == before
     fmu.terminate()
     fmu.freeInstance()
+
+
+DESCRIPTIONS = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*/*.toml"))
+
+
+@pytest.mark.parametrize("toml", DESCRIPTIONS, ids=[p.stem for p in DESCRIPTIONS])
+def test_description_plants_equal_the_python_model(tmp_path: Path, toml: Path) -> None:
+    """The native plant FMU of an example description (`emcosim plant build FILE --native`), any n_m, n_e:
+    derivatives, Jacobian, nominals and event indicator against the generated Python plant (components.codegen,
+    ph_plant's numpy composition, plant_step.nominal_scale) at random states; doStep against
+    components.plant_step.make_stepper over ten held-input steps."""
+    from components import codegen
+    from components.description import load
+    from components.plant_step import make_stepper, nominal_scale
+    from fmus.native_build import build_native_description
+    desc = load(toml)
+    plant = codegen.plant_class(desc)()
+    path = build_native_description(toml, tmp_path)
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    states = [v.name for v in (*desc.q, *desc.p, *desc.x_e)]
+    inputs = [v.name for v in desc.u]
+    n = len(states)
+    fmu = FMU2Model(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=desc.name, instanceName="x")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.newDiscreteStates()
+    fmu.enterContinuousTimeMode()
+    ptr = np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)
+    scale = nominal_scale(plant)
+    nominal = np.zeros(n)
+    fmu.getNominalsOfContinuousStates(nominal.ctypes.data_as(ptr), n)
+    np.testing.assert_allclose(nominal, scale, rtol=1e-12)
+    eta0 = np.array(fmu.getReal([vr[s] for s in states]))
+    rng = np.random.default_rng(3)
+    count = 0
+    for _ in range(2000):
+        eta = eta0 + rng.uniform(-0.5, 0.5, n) * scale
+        if not plant.domain_margin(eta) > 0 or count == 20:
+            continue
+        count += 1
+        u = rng.uniform(-2, 2, len(inputs))
+        fmu.setReal([vr[i] for i in inputs], list(u))
+        fmu.setContinuousStates(eta.ctypes.data_as(ptr), n)
+        dx, z = np.zeros(n), np.zeros(1)
+        fmu.getDerivatives(dx.ctypes.data_as(ptr), n)
+        fmu.getEventIndicators(z.ctypes.data_as(ptr), 1)
+        f = plant.f(eta, u)
+        np.testing.assert_allclose(dx, f, rtol=1e-12, atol=1e-14 * np.max(np.abs(f)))
+        np.testing.assert_allclose(z[0], plant.domain_margin(eta), rtol=1e-12)
+        J = np.hstack([plant.jacobian(eta), plant.g()])
+        knowns = [vr[s] for s in states + inputs]
+        got = np.array([fmu.getDirectionalDerivative([vr[f"der({s})"] for s in states], knowns, list(seed))
+                        for seed in np.eye(n + len(inputs))]).T
+        np.testing.assert_allclose(got, J, rtol=1e-12, atol=1e-14 * np.max(np.abs(J)))
+    assert count == 20
+    fmu.terminate()
+    fmu.freeInstance()
+    cs, cs_vr = slave(path, desc.name)
+    u0 = 1.1 * np.array(cs.getReal([cs_vr[i] for i in inputs])) + 0.01      # off the start's equilibrium
+    cs.setReal([cs_vr[i] for i in inputs], list(u0))
+    stepper = make_stepper(plant, rtol=1e-8)
+    eta, moved = eta0.copy(), 0.0
+    h = float(md.defaultExperiment.stepSize)
+    for k in range(10):
+        cs.doStep(k * h, h)
+        eta = stepper.step(eta, u0 if len(u0) > 1 else u0[0], h)
+        moved = max(moved, float(np.max(np.abs(eta - eta0) / scale)))
+    got = np.array(cs.getReal([cs_vr[s] for s in states]))
+    assert moved > 1e-4                                        # the comparison is not of two resting states
+    assert np.all(np.abs(got - eta) <= 1e-6 * scale), (got, eta)
+    cs.terminate()
+    cs.freeInstance()

@@ -217,12 +217,12 @@ static const double *state(const emc_instance *c)
 }
 
 
+#if EMC_N_M == 1 && EMC_N_INPUTS == 1
 /* nominal (q, p, x_e) of a one-degree-of-freedom plant from its parameters alone: the construction of
    components.plant_step.nominal_scale (L the distance to the domain's boundary, force |V'(L)|,
    T = sqrt(m L / F), momentum m L / T, x_e with 1/2 |Psi'(0)| x_e^2 = F) */
 static void nominals(const double *par, double *out)
 {
-#if EMC_N_M == 1 && EMC_N_INPUTS == 1
     double zero[EMC_N] = {0.0, 0.0, 0.0}, at[EMC_N] = {0.0, 0.0, 0.0};
     double L, force, Minv, m, T, dPsi;
     emc_margin(par, zero, NULL, &L);
@@ -239,10 +239,67 @@ static void nominals(const double *par, double *out)
     out[0] = L;
     out[1] = m * L / T;
     out[2] = dPsi > 0.0 ? sqrt(2.0 * force / dPsi) : 1.0;
-#else
-#error "nominals: native FMUs of plants with n_m > 1 or n_e > 1 are not generated yet"
-#endif
 }
+#else
+/* is q = t e_i (sign +-1) inside the domain (margin > 0 or no boundary)? */
+static int inside_along(const double *par, int i, double t)
+{
+    double eta[EMC_N] = {0.0}, margin;
+    eta[i] = t;
+    emc_margin(par, eta, NULL, &margin);
+    return (isfinite(margin) && margin > 0.0) || margin == INFINITY;
+}
+
+/* components.plant_step._boundary_distance along sign e_i: to 1e-3 relative, inf beyond 1e6, nan if q = 0 is
+   outside (at most 19 decades and 11 bisections) */
+static double boundary_distance(const double *par, int i, double sign)
+{
+    double low = 0.0, high = 1e-12;
+    if (!inside_along(par, i, 0.0)) return NAN;
+    while (inside_along(par, i, sign * high)) {
+        if (high >= 1e6) return INFINITY;
+        low = high;
+        high *= 10.0;
+    }
+    while (high - low > 1e-3 * high) {
+        double mid = 0.5 * (low + high);
+        if (inside_along(par, i, sign * mid)) low = mid; else high = mid;
+    }
+    return low;
+}
+
+/* components.plant_step._nominal_scale_general: the one-degree-of-freedom construction per axis */
+static void nominals(const double *par, double *out)
+{
+    const int m = EMC_N_M, e = EMC_N_INPUTS;
+    double zero[EMC_N] = {0.0}, at[EMC_N], grad[EMC_N_M], Minv[EMC_N_M * EMC_N_M], dPsi[EMC_N_M * EMC_N_INPUTS * EMC_N_INPUTS];
+    double L[EMC_N_M], force[EMC_N_M], mass[EMC_N_M];
+    int i, j, k;
+    emc_M_inv(par, zero, NULL, Minv);
+    for (i = 0; i < m; i++) {
+        double d = fmin(boundary_distance(par, i, 1.0), boundary_distance(par, i, -1.0)), F;
+        L[i] = (isfinite(d) && d > 0.0) ? d : 1.0;
+        for (k = 0; k < EMC_N; k++) at[k] = 0.0;
+        at[i] = L[i];
+        emc_grad_V(par, at, NULL, grad);
+        F = fabs(grad[i]);
+        force[i] = (isfinite(F) && F > 0.0) ? F : 1.0;
+        mass[i] = Minv[i * m + i] > 0.0 ? 1.0 / Minv[i * m + i] : 1.0;
+        out[i] = L[i];
+        out[m + i] = mass[i] * L[i] / sqrt(mass[i] * L[i] / force[i]);
+    }
+    emc_dPsi(par, zero, NULL, dPsi);
+    for (j = 0; j < e; j++) {
+        int best = 0;
+        for (k = 1; k < m; k++)
+            if (fabs(dPsi[(k * e + j) * e + j]) > fabs(dPsi[(best * e + j) * e + j])) best = k;
+        out[2 * m + j] = fabs(dPsi[(best * e + j) * e + j]) > 0.0
+                             ? sqrt(2.0 * force[best] / fabs(dPsi[(best * e + j) * e + j])) : 1.0;
+    }
+    for (k = 0; k < EMC_N; k++)
+        if (!(isfinite(out[k]) && out[k] > 0.0)) out[k] = 1.0;
+}
+#endif
 
 /* ---- common functions --------------------------------------------------------------------------- */
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }

@@ -355,3 +355,22 @@ def test_description_plants_equal_the_python_model(tmp_path: Path, toml: Path) -
     assert np.all(np.abs(got - eta) <= 1e-6 * scale), (got, eta)
     cs.terminate()
     cs.freeInstance()
+
+
+def test_entry_points(tmp_path: Path, capsys) -> None:
+    """`emcosim plant build FILE --out DIR --native` writes the native plant FMU and says which controllers it
+    did not build; `build.py --native` the paper's native plants; a failure is exit 1 with the CLI's last line."""
+    import build as build_script
+    from emcosim.cli import main
+    solenoid = DESCRIPTIONS[[p.stem for p in DESCRIPTIONS].index("solenoid")]
+    assert main(["plant", "build", str(solenoid), "--out", str(tmp_path / "cli"), "--native"]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "cli" / "Solenoid.fmu").is_file() and "native controllers are not generated yet" in out
+    assert read_model_description(str(tmp_path / "cli" / "Solenoid.fmu")).generationTool == GENERATOR
+    assert build_script.main(["--native", "--dest", str(tmp_path / "paper")]) == 0
+    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == ["MEMS.fmu", "Maglev.fmu"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text(solenoid.read_text().replace('name = "Solenoid"', 'name = "Solenoid"\nnonsense = 1'))
+    assert main(["plant", "build", str(bad), "--out", str(tmp_path / "bad"), "--native"]) == 1
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("emcosim: error: ")
+    assert not (tmp_path / "bad").exists()

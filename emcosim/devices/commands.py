@@ -1,7 +1,7 @@
 """`emcosim plant check | build | scenario`: from a plant description file to FMUs and a closed-loop scenario.
 
     emcosim plant check FILE [--q-d Q ...] [--reference SPEC ...] [--json OUT]
-    emcosim plant build FILE --out DIR
+    emcosim plant build FILE --out DIR [--native]
     emcosim plant scenario FILE --controller DESIGN --out DIR --stop-time T --step-size H [...]
 
 check: which of Assumptions 1-4 hold, each with its test, and which designs apply (components.plant_check).
@@ -38,6 +38,8 @@ def add_parser(sub) -> None:
     build = psub.add_parser("build", help="build the plant FMU and a controller FMU per design that applies")
     build.add_argument("file")
     build.add_argument("--out", required=True, help="folder for the FMUs")
+    build.add_argument("--native", action="store_true",
+                       help="build the native (C, self-contained) plant FMU instead (docs/native-fmus.md)")
     build.set_defaults(func=cmd_build)
 
     scen = psub.add_parser("scenario", help="write an SSP scenario: the plant in closed loop with one controller")
@@ -109,12 +111,29 @@ def cmd_build(args) -> int:
         raise _describe(exc) from None
     for line in report.not_applicable():                # "<design>: <why>"
         print(f"not built   {device.name}_{line}")
+    if getattr(args, "native", False):
+        return _build_native(desc, list(device.designs), Path(args.out))
     try:
         paths = build_fmus_of(desc, list(device.designs), Path(args.out))
     except (BuildError, ValueError) as exc:
         raise _describe(exc) from None
     for path in paths.values():
         print(f"built       {path}")
+    return 0
+
+
+def _build_native(desc, designs: list[str], out: Path) -> int:
+    """`plant build --native`: the native plant FMU (fmus.native_build); native controllers and the Reference
+    are not generated yet."""
+    from fmus.native_build import NativeBuildError, build_native_description
+
+    try:
+        path = build_native_description(desc.source, out)
+    except (NativeBuildError, ValueError) as exc:
+        raise _describe(exc) from None
+    print(f"built       {path}")
+    for design in designs:
+        print(f"not built   {desc.name}_{design}: native controllers are not generated yet (docs/native-fmus.md)")
     return 0
 
 

@@ -374,3 +374,33 @@ def test_entry_points(tmp_path: Path, capsys) -> None:
     assert main(["plant", "build", str(bad), "--out", str(tmp_path / "bad"), "--native"]) == 1
     assert capsys.readouterr().err.strip().splitlines()[-1].startswith("emcosim: error: ")
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.skipif(shutil.which("clang") is None, reason="needs clang")
+def test_sources_compile_with_clang(native, tmp_path: Path) -> None:
+    """sources/ compile with clang -std=c99 -Wall -Wextra -Werror -pedantic as with gcc (fmus.native_build)."""
+    from fmus.native_build import compile_sources
+    sources = tmp_path / "sources"
+    sources.mkdir()
+    with zipfile.ZipFile(native["MEMS"]) as z:
+        for member in z.namelist():
+            if member.startswith("sources/"):
+                (sources / Path(member).name).write_bytes(z.read(member))
+    compile_sources(sources, tmp_path / "MEMS.so", cc="clang", extra=("-pedantic",))
+    assert (tmp_path / "MEMS.so").stat().st_size > 0
+
+
+@pytest.mark.skipif(shutil.which("cmake") is None, reason="needs cmake")
+def test_fmpy_compiles_the_sources(native, tmp_path: Path) -> None:
+    """fmpy's build_platform_binary (CMake) compiles sources/ of <SourceFiles> into a binary that runs."""
+    from fmpy import simulate_fmu
+    from fmpy.build import build_platform_binary
+    folder = tmp_path / "Maglev"
+    with zipfile.ZipFile(native["Maglev"]) as z:
+        for member in z.namelist():
+            if not member.startswith("binaries/"):
+                z.extract(member, folder)
+    build_platform_binary(folder, all_warnings=True)
+    assert (folder / "binaries" / "linux64" / "Maglev.so").is_file()
+    runs = [simulate_fmu(str(p), fmi_type="CoSimulation", stop_time=0.05) for p in (folder, native["Maglev"])]
+    np.testing.assert_allclose(runs[0]["q"], runs[1]["q"], rtol=1e-12)

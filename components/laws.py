@@ -133,3 +133,76 @@ def tracking_law(desc: Description, family: str) -> Law:
     jet, subs = feasible_reference(desc)
     base = law(desc, family)
     return Law(base.family, base.equations + ", Definition 1", base.gains, jet, base.u.xreplace(subs))
+
+
+FAMILY = {"Proposition1": "c1", "Theorem2": "c1", "Proposition2": "u2", "Theorem3": "u2"}
+TRACKING = {"Proposition1": False, "Theorem2": True, "Proposition2": False, "Theorem3": True}
+
+
+@dataclass(frozen=True)
+class DesignLaw:
+    """The law of one design of a one-degree-of-freedom device as its controller FMU computes it: u and its
+    Jacobian in the FMU's inputs (q, p, x_e, then the jet when tracking) and its gain parameters (the
+    design's, in their order: q_d for regulation, rbar_e or R_e_bar, k_c, D_d, ...), with what the
+    controller's construction checks (components.closed_loop: R_e_bar > 0, k_c > 0, eq. pHcondition) and
+    the reference's feasibility (Definition 1: q* inside the domain, 2 F* / g > 0)."""
+
+    design: str
+    inputs: tuple[sympy.Symbol, ...]
+    gains: tuple[sympy.Symbol, ...]
+    u: sympy.Expr
+    jacobian: tuple[sympy.Expr, ...]
+    R_e_bar: sympy.Expr
+    k_c: sympy.Expr
+    ph_margin: sympy.Expr                          # R_m - D_d^2 / (4 R_e_bar), eq. (pHcondition) for n = 1
+    reference_margin: sympy.Expr                   # the domain margin at q*
+    reference_ratio: sympy.Expr                    # 2 F* / g of Definition 1 (> 0: x_e* is real)
+
+
+def design_law(desc: Description, design: str, gain_names: tuple[str, ...]) -> DesignLaw:
+    """The DesignLaw of `design` (Proposition1, Proposition2, Theorem2, Theorem3) for a plant with
+    n_m = n_e = 1 and constant mass; `gain_names`: the design's gain parameters (components.device)."""
+    from .description import gain_table
+    from .symbolic import plant_expressions
+
+    if design not in FAMILY:
+        raise ValueError(f"no design {design!r} ({', '.join(FAMILY)})")
+    stated = tracking_law(desc, FAMILY[design])
+    jet, subs = feasible_reference(desc)
+    symbols = {n: sympy.Symbol(n, real=True) for n in gain_names}
+    defaults, forms, _ = gain_table(desc)
+
+    def gain(name: str) -> sympy.Expr:
+        if name in symbols:
+            return symbols[name]
+        if name in forms:
+            return forms[name][0][0, 0]
+        if name in defaults:
+            return sympy.Float(defaults[name][0][0])
+        if name == "W":                             # Phi_1 / Theta_1 with W = I, as in the paper
+            return sympy.Integer(1)
+        raise ValueError(f"{desc.source}: design {design} has no gain {name}")
+
+    values = {"R_e_bar": gain("R_e_bar"), "D_d": gain("D_d")}
+    values["W" if FAMILY[design] == "c1" else "k_c"] = gain("W" if FAMILY[design] == "c1" else "k_c")
+    replace = {s: values[s.name] for s in stated.gains}
+    E = plant_expressions(desc)
+    if TRACKING[design]:
+        inputs = E.eta + jet
+        reference = dict(zip(jet, jet))
+    else:
+        q_d = symbols["q_d"]
+        inputs = E.eta
+        reference = {jet[0]: q_d, jet[1]: sympy.Integer(0), jet[2]: sympy.Integer(0), jet[3]: sympy.Integer(0)}
+    u = stated.u[0].xreplace(replace).xreplace(reference)
+    q = E.q[0]
+    margin = E.domain_margin
+    x_star = _reference_symbols(desc)[2][0]
+    ratio = (subs[x_star] / desc.x_e_sign) ** 2                              # x_e*^2 = 2 F* / g (Definition 1)
+    R_m = desc.R_m[0, 0]
+    return DesignLaw(
+        design, tuple(inputs), tuple(symbols[n] for n in gain_names), u, tuple(u.diff(s) for s in inputs),
+        values["R_e_bar"], values.get("k_c", sympy.Integer(1)),
+        R_m - values["D_d"] ** 2 / (4 * values["R_e_bar"]),
+        (sympy.oo if margin is None else margin.xreplace({q: jet[0]})).xreplace(reference),
+        ratio.xreplace(reference))

@@ -38,6 +38,7 @@ SOURCE_FILES = ("emc_fmi2.c", "model.c", "config.c")          # compiled togethe
 CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-fPIC", "-shared")
 OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}   # as the twin (fmus/build.py)
 PAPER_PLANTS = {"MEMS": PLANTS / "mems.toml", "Maglev": PLANTS / "maglev.toml"}
+PAPER_FMUS = ("MEMS", "Maglev", "MEMS_Proposition1", "MEMS_Theorem2", "Maglev_Proposition2", "Maglev_Theorem3")
 
 
 class NativeBuildError(RuntimeError):
@@ -119,11 +120,12 @@ def _fmi_headers() -> Path:
     return Path(fmpy.__file__).parent / "c-code"
 
 
-def compile_sources(sources: Path, library: Path, cc: str = "gcc", extra: tuple[str, ...] = ()) -> None:
-    """Compile sources/ into `library` (NativeBuildError with the compiler's message)."""
+def compile_sources(sources: Path, library: Path, cc: str = "gcc", extra: tuple[str, ...] = (),
+                    files: tuple[str, ...] = SOURCE_FILES) -> None:
+    """Compile `files` of sources/ into `library` (NativeBuildError with the compiler's message)."""
     if shutil.which(cc) is None:
         raise NativeBuildError(f"native FMUs: the C compiler {cc!r} is not installed (Debian/Ubuntu: apt-get install gcc)")
-    command = [cc, *CFLAGS, *extra, "-I", str(sources), *(str(sources / f) for f in SOURCE_FILES), "-o", str(library), "-lm"]
+    command = [cc, *CFLAGS, *extra, "-I", str(sources), *(str(sources / f) for f in files), "-o", str(library), "-lm"]
     run = subprocess.run(command, capture_output=True, text=True)
     if run.returncode != 0:
         raise NativeBuildError(f"native FMUs: compiling failed:\n{' '.join(command)}\n{run.stderr}")
@@ -160,30 +162,36 @@ def build_native_description(description: Path | str, dest: Path | str, cc: str 
 
 def _build(slave, desc: Description, dest: Path | str, cc: str) -> Path:
     """The native FMU of the twin `slave` (a declared PlantSlave) and its description `desc`."""
-    identifier = slave.model_identifier
     if not desc.constant_mass and desc.n_m > 3:
         raise NativeBuildError(f"native FMUs: {desc.name}: M depends on q with n_m = {desc.n_m} > 3 (no symbolic "
                                "inverse is generated)")
     model_c = model_c_source(desc)
-    native = Native(GENERATOR, SOURCE_FILES, co_simulation=True)
-    framework = "".join((NATIVE / f).read_text() for f in FRAMEWORK)
-    root = model_description(slave, model_c + framework, OPTIONS, native)
-    guid = root.get("guid")
-    header, config = config_sources(slave, desc, guid)
+    generated = {"model.c": model_c, "emc_model.h": MODEL_HEADER}
+    return _package(slave, FRAMEWORK, generated, SOURCE_FILES, lambda guid: config_sources(slave, desc, guid), dest, cc)
+
+
+def _package(slave, framework: tuple[str, ...], generated: dict[str, str], source_files: tuple[str, ...],
+             config, dest: Path | str, cc: str) -> Path:
+    """Write dest/<identifier>.fmu: the modelDescription of `slave` (the twin) in its native form, sources/
+    (the framework files of fmus/native, the generated files, the config that `config(guid)` gives as
+    (emc_config.h, config.c), the FMI headers) and binaries/linux64 compiled from `source_files`."""
+    identifier = slave.model_identifier
+    native = Native(GENERATOR, source_files, co_simulation=True)
+    text = "".join((NATIVE / f).read_text() for f in framework) + "".join(generated[k] for k in sorted(generated))
+    root = model_description(slave, text, OPTIONS, native)
+    header, config_c = config(root.get("guid"))
     files: dict[str, bytes] = {"modelDescription.xml": parseString(tostring(root, "UTF-8")).toprettyxml(encoding="UTF-8")}
     with tempfile.TemporaryDirectory() as work:
         sources = Path(work) / "sources"
         sources.mkdir()
-        for name in FRAMEWORK:
+        for name in framework:
             shutil.copy2(NATIVE / name, sources / name)
         for name in FMI_HEADERS:
             shutil.copy2(_fmi_headers() / name, sources / name)
-        (sources / "model.c").write_text(model_c)
-        (sources / "emc_model.h").write_text(MODEL_HEADER)
-        (sources / "emc_config.h").write_text(header)
-        (sources / "config.c").write_text(config)
+        for name, content in {**generated, "emc_config.h": header, "config.c": config_c}.items():
+            (sources / name).write_text(content)
         library = Path(work) / f"{identifier}.so"
-        compile_sources(sources, library, cc)
+        compile_sources(sources, library, cc, files=source_files)
         for path in sorted(sources.iterdir()):
             files[f"sources/{path.name}"] = path.read_bytes()
         files[f"binaries/linux64/{identifier}.so"] = library.read_bytes()
@@ -199,14 +207,99 @@ def _build(slave, desc: Description, dest: Path | str, cc: str) -> Path:
     return target
 
 
+# ---- controllers ------------------------------------------------------------------------------------
+CONTROLLER_FRAMEWORK = ("emc_controller.c", "emc_controller.h")
+CONTROLLER_SOURCE_FILES = ("emc_controller.c", "controller.c", "model.c", "config.c")
+STRICT_PH = {"Proposition1": 1, "Proposition2": 0, "Theorem2": -1, "Theorem3": -1}   # eq. (pHcondition)
+
+
+def controller_config(slave, desc: Description, design, guid: str) -> tuple[str, str]:
+    """(emc_config.h, config.c) of a controller FMU: the twin's variables by value reference, the starts."""
+    parameters, gains = list(desc.parameters), list(design.gains)
+    inputs = list(slave.input_names)
+    outputs = [v.name for v in desc.u]
+    rows = []
+    for v in slave.variables:
+        if v.causality == "parameter" and v.name in parameters:
+            kind, index = "EMC_C_PARAMETER", parameters.index(v.name)
+        elif v.causality == "parameter" and v.name in gains:
+            kind, index = "EMC_C_GAIN", gains.index(v.name)
+        elif v.causality == "parameter" and v.name == "strict":
+            kind, index = "EMC_C_STRICT", 0
+        elif v.causality == "input" and v.name in inputs:
+            kind, index = "EMC_C_INPUT", inputs.index(v.name)
+        elif v.causality == "output" and v.name in outputs:
+            kind, index = "EMC_C_OUTPUT", outputs.index(v.name)
+        else:
+            raise NativeBuildError(f"{slave.model_identifier}: variable {v.name} ({v.causality}) has no native form")
+        rows.append(f"    {{{kind}, {index}, {_c_string(v.name)}}},")
+    family = "u2" if design.name in ("Proposition2", "Theorem3") else "c1"
+    header = "\n".join([
+        f"/* Generated by fmus/native_build.py for {slave.model_identifier}; do not edit. */",
+        "#ifndef EMC_CONFIG_H", "#define EMC_CONFIG_H",
+        f"#define EMC_MODEL_IDENTIFIER {_c_string(slave.model_identifier)}",
+        f"#define EMC_GUID {_c_string(guid)}",
+        f"#define EMC_N_PARAMETERS {len(parameters)}",
+        f"#define EMC_N_GAINS {len(gains)}",
+        f"#define EMC_N_CONTROLLER_INPUTS {len(inputs)}",
+        f"#define EMC_N_VARIABLES {len(rows)}",
+        f"#define EMC_TRACKING {int(design.tracking)}",
+        f"#define EMC_STRICT_PH {STRICT_PH[design.name]}",
+        f"#define EMC_ASK_K_C {int(family == 'u2')}",
+        "#endif", ""])
+    conditions = {"> 0": "> 0", ">= 0": ">= 0", "any": "finite"}
+
+    def doubles(values) -> str:
+        return ", ".join(repr(float(x)) for x in values)
+
+    def strings(values) -> str:
+        return ", ".join(_c_string(x) for x in values)
+    source = "\n".join([
+        f"/* Generated by fmus/native_build.py for {slave.model_identifier}; do not edit. */",
+        '#include "emc_controller.h"', "",
+        "const emc_c_variable EMC_VARIABLES[EMC_N_VARIABLES] = {   /* by value reference */", *rows, "};",
+        f"const double EMC_PARAMETER_START[EMC_N_PARAMETERS] = {{{doubles(slave.values[p] for p in parameters)}}};",
+        f"const char *const EMC_PARAMETER_NAMES[EMC_N_PARAMETERS] = {{{strings(parameters)}}};",
+        "const char *const EMC_PARAMETER_CONDITIONS[EMC_N_PARAMETERS] = "
+        f"{{{strings(conditions[p.condition] for p in desc.parameters.values())}}};",
+        f"const double EMC_GAIN_START[EMC_N_GAINS] = {{{doubles(slave.values[g] for g in gains)}}};",
+        f"const char *const EMC_GAIN_NAMES[EMC_N_GAINS] = {{{strings(gains)}}};",
+        "const char *const EMC_GAIN_CONDITIONS[EMC_N_GAINS] = "
+        f"{{{strings(conditions[p.condition] for p in design.gains.values())}}};",
+        f"const double EMC_INPUT_START[EMC_N_CONTROLLER_INPUTS] = {{{doubles(slave.values[i] for i in inputs)}}};",
+        f"const char *const EMC_INPUT_NAMES[EMC_N_CONTROLLER_INPUTS] = {{{strings(inputs)}}};", ""])
+    return header, source
+
+
+def build_native_controller(identifier: str, dest: Path | str, cc: str = "gcc") -> Path:
+    """Build the native form of the paper's controller FMU `identifier` (MEMS_Proposition1, MEMS_Theorem2,
+    Maglev_Proposition2, Maglev_Theorem3) into dest/<identifier>.fmu."""
+    from components.c_codegen import controller_c_source
+
+    plant, _, design_name = identifier.partition("_")
+    toml = PAPER_PLANTS.get(plant)
+    if toml is None or not design_name:
+        raise NativeBuildError(f"native FMUs: {identifier} is not one of the paper's controller FMUs")
+    desc = load(toml)
+    slave = _twin(identifier)
+    design = slave.device.designs[design_name]
+    if desc.n_m != 1 or desc.n_e != 1 or not desc.constant_mass:
+        raise NativeBuildError(f"native FMUs: {identifier}: native controllers need n_m = n_e = 1 and a constant M")
+    generated = {"controller.c": controller_c_source(desc, design_name, list(design.gains.values())),
+                 "model.c": model_c_source(desc), "emc_model.h": MODEL_HEADER}
+    return _package(slave, CONTROLLER_FRAMEWORK, generated, CONTROLLER_SOURCE_FILES,
+                    lambda guid: controller_config(slave, desc, design, guid), dest, cc)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description="Build native (self-contained) plant FMUs (Model Exchange).")
-    ap.add_argument("identifiers", nargs="*", default=list(PAPER_PLANTS), help="plant FMUs (default: MEMS Maglev)")
+    ap = argparse.ArgumentParser(description="Build native (self-contained) FMUs: the paper's plants and controllers.")
+    ap.add_argument("identifiers", nargs="*", default=list(PAPER_FMUS), help=f"FMUs (default: {' '.join(PAPER_FMUS)})")
     ap.add_argument("--dest", default="build/native", help="output folder (default build/native)")
     args = ap.parse_args(argv)
     try:
         for identifier in args.identifiers:
-            print(f"built       {build_native(identifier, args.dest)}")
+            build = build_native_controller if "_" in identifier else build_native
+            print(f"built       {build(identifier, args.dest)}")
     except NativeBuildError as exc:
         print(f"emcosim: error: {exc}", file=sys.stderr)
         return 1

@@ -433,3 +433,124 @@ def test_paper_scenario_with_the_native_plant(native, fmu_dir, tmp_path: Path, s
     for name in runs[0].dtype.names[1:]:
         scale = np.max(np.abs(runs[0][name])) or 1.0
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
+
+
+CONTROLLERS = ("MEMS_Proposition1", "MEMS_Theorem2", "Maglev_Proposition2", "Maglev_Theorem3")
+
+
+@pytest.fixture(scope="module")
+def native_controllers(tmp_path_factory) -> dict[str, Path]:
+    from fmus.native_build import build_native_controller
+    dest = tmp_path_factory.mktemp("native_controllers")
+    return {name: build_native_controller(name, dest) for name in CONTROLLERS}
+
+
+def test_controllers_validate_with_the_twins_interface(native_controllers, fmus) -> None:
+    for name, path in native_controllers.items():
+        assert validate_fmu(str(path)) == []
+        roots = []
+        for fmu in (path, fmus[name]):
+            with zipfile.ZipFile(fmu) as z:
+                roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
+        for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions", "VendorAnnotations"):
+            assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), (name, tag)
+        for interface in ("ModelExchange", "CoSimulation"):
+            mine, twin = (dict(r.find(interface).attrib) for r in roots)
+            assert mine.pop("needsExecutionTool") == "false" and twin.pop("needsExecutionTool") == "true"
+            assert mine == twin
+
+
+@pytest.mark.parametrize("name", CONTROLLERS)
+def test_controller_equals_the_twin(native_controllers, fmus, name) -> None:
+    """u, its directional derivatives (every input) and du/dt from input rates: the symbolic law and
+    Jacobian in C against the twin's numpy law and complex step, at 20 random inputs, to 1e-12."""
+    a, vr = slave(native_controllers[name], name)
+    b, _ = slave(fmus[name], name)
+    inputs = [v.name for v in read_model_description(str(fmus[name])).modelVariables if v.causality == "input"]
+    x0 = np.array(a.getReal([vr[i] for i in inputs]))
+    scale = np.where(x0 != 0, np.abs(x0), 1e-3 * np.max(np.abs(x0)))
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        x = x0 + rng.uniform(-0.1, 0.1, len(x0)) * scale
+        rates = list(rng.uniform(-1, 1, len(x0)) * scale)
+        got, want = [], []
+        for f, out in ((a, got), (b, want)):
+            f.setReal([vr[i] for i in inputs], list(x))
+            out.append(f.getReal([vr["u"]])[0])
+            out += [f.getDirectionalDerivative([vr["u"]], [vr[i]], [1.0])[0] for i in inputs]
+            f.setRealInputDerivatives([vr[i] for i in inputs], [1] * len(inputs), rates)
+            out.append(f.getRealOutputDerivatives([vr["u"]], [1])[0])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * max(abs(want[0]), 1.0))
+    for f in (a, b):
+        f.terminate()
+        f.freeInstance()
+
+
+def test_controller_refusals(native_controllers) -> None:
+    """strict = 1, a set point outside the domain, D_d against eq. (pHcondition) (Proposition 1), a reference
+    past the magnet (Theorem 3), a NaN input: fmi2Error at initialization or at fmi2GetReal (fmi2Discard in
+    doStep), never a number."""
+    from fmpy.fmi2 import FMU2Slave
+
+    def fresh(name: str):
+        path = native_controllers[name]
+        md = read_model_description(str(path))
+        f = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=name, instanceName=name)
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        return f, {v.name: v.valueReference for v in md.modelVariables}
+
+    for name, setting in (("MEMS_Proposition1", ("q_d", -1.0)), ("MEMS_Proposition1", ("D_d", 1.0)),
+                          ("Maglev_Proposition2", ("k_c", -1.0)), ("MEMS_Theorem2", ("rbar_e", 0.0))):
+        f, vr = fresh(name)
+        f.setReal([vr[setting[0]]], [setting[1]])
+        with pytest.raises(FMICallException):
+            f.exitInitializationMode()
+        f.freeInstance()
+    f, vr = fresh("Maglev_Theorem3")
+    f.setInteger([vr["strict"]], [1])
+    with pytest.raises(FMICallException):
+        f.exitInitializationMode()
+    f.setInteger([vr["strict"]], [0])
+    f.exitInitializationMode()
+    f.setReal([vr["q_star"]], [0.006])                           # past the magnet at c = 0.005
+    with pytest.raises(FMICallException):
+        f.getReal([vr["u"]])
+    with pytest.raises(FMICallException) as info:
+        f.doStep(0.0, 0.01)
+    assert info.value.status == DISCARD
+    f.setReal([vr["q_star"]], [0.0025])
+    assert np.isfinite(f.getReal([vr["u"]])[0])
+    with pytest.raises(FMICallException):
+        f.setReal([vr["q"]], [float("nan")])
+    f.doStep(0.0, 0.01)
+    f.terminate()
+    f.freeInstance()
+
+
+@pytest.mark.parametrize("scenario, interface, tol", [("maglev_tracking_D-1_R0.82", "CoSimulation", 1e-10),
+                                                      ("maglev_tracking_D-1_R0.82", "ModelExchange", 1e-6),
+                                                      ("mems_tracking_Dd0", "CoSimulation", 1e-6)])
+def test_paper_scenario_all_native(native, native_controllers, fmu_dir, tmp_path: Path, scenario, interface, tol) -> None:
+    """A paper tracking scenario with the native plant and controller (the Reference stays pythonfmu) gives the
+    all-pythonfmu run's results. Measured: maglev CS 8e-13, ME 4e-8 (LSODA at the scenario's tolerance);
+    mems_tracking_Dd0 CS 7e-9."""
+    from emcosim.cli import main
+    root = Path(__file__).resolve().parents[1]
+    mixed = tmp_path / "fmus"
+    mixed.mkdir()
+    for fmu in fmu_dir.glob("*.fmu"):
+        shutil.copy2(fmu, mixed / fmu.name)
+    for path in (*native.values(), *native_controllers.values()):
+        shutil.copy2(path, mixed / path.name)
+    runs = []
+    for folder, label in ((fmu_dir, "py"), (mixed, "native")):
+        out = tmp_path / f"{label}.csv"
+        assert main(["run", str(root / "scenarios" / scenario), "--fmu-dir", str(folder), "--interface-type", interface,
+                     "--no-progress", "-o", str(out)]) == 0
+        runs.append(np.genfromtxt(out, delimiter=",", names=True))
+    assert len(runs[0]) == len(runs[1]) > 10
+    for name in runs[0].dtype.names[1:]:
+        scale = np.max(np.abs(runs[0][name])) or 1.0
+        assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name

@@ -21,6 +21,7 @@ import sys
 import tempfile
 import zipfile
 from pathlib import Path
+from typing import Sequence
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import tostring
 
@@ -140,26 +141,6 @@ def build_native(identifier: str, dest: Path | str, cc: str = "gcc") -> Path:
     return _build(_twin(identifier), load(toml), dest, cc)
 
 
-def build_native_description(description: Path | str, dest: Path | str, cc: str = "gcc") -> Path:
-    """Build the native plant FMU of a plant description file (TOML) into dest/<name>.fmu: its twin is the plant
-    FMU `emcosim plant build` makes (fmus.build.build_description: the same slave class, start values and
-    DefaultExperiment)."""
-    from components import codegen
-
-    from .build import load_device_module
-    from .models import device_slave_classes
-
-    description = Path(description).resolve()
-    desc = load(description)
-    with tempfile.TemporaryDirectory(prefix="emcosim_native_") as tmp:
-        module = Path(tmp) / f"{description.stem.lower()}_model.py"
-        module.write_text(codegen.module_source(desc, description.name))
-        cls = device_slave_classes(load_device_module(module), [])[desc.name]
-        with tempfile.TemporaryDirectory() as resources:
-            slave = cls(instance_name="native-build", resources=resources)
-    return _build(slave, desc, dest, cc)
-
-
 def _build(slave, desc: Description, dest: Path | str, cc: str) -> Path:
     """The native FMU of the twin `slave` (a declared PlantSlave) and its description `desc`."""
     if not desc.constant_mass and desc.n_m > 3:
@@ -274,21 +255,56 @@ def controller_config(slave, desc: Description, design, guid: str) -> tuple[str,
 def build_native_controller(identifier: str, dest: Path | str, cc: str = "gcc") -> Path:
     """Build the native form of the paper's controller FMU `identifier` (MEMS_Proposition1, MEMS_Theorem2,
     Maglev_Proposition2, Maglev_Theorem3) into dest/<identifier>.fmu."""
-    from components.c_codegen import controller_c_source
-
     plant, _, design_name = identifier.partition("_")
     toml = PAPER_PLANTS.get(plant)
     if toml is None or not design_name:
         raise NativeBuildError(f"native FMUs: {identifier} is not one of the paper's controller FMUs")
-    desc = load(toml)
-    slave = _twin(identifier)
-    design = slave.device.designs[design_name]
+    return _build_controller(_twin(identifier), load(toml), design_name, dest, cc)
+
+
+def _build_controller(slave, desc: Description, design_name: str, dest: Path | str, cc: str) -> Path:
+    """The native controller FMU of the twin `slave` (a declared ControllerSlave) of design `design_name`."""
+    from components.c_codegen import controller_c_source
+
     if desc.n_m != 1 or desc.n_e != 1 or not desc.constant_mass:
-        raise NativeBuildError(f"native FMUs: {identifier}: native controllers need n_m = n_e = 1 and a constant M")
+        raise NativeBuildError(f"native FMUs: {slave.model_identifier}: native controllers need n_m = n_e = 1 and a "
+                               "constant M (docs/native-fmus.md)")
+    design = slave.device.designs[design_name]
     generated = {"controller.c": controller_c_source(desc, design_name, list(design.gains.values())),
                  "model.c": model_c_source(desc), "emc_model.h": MODEL_HEADER}
     return _package(slave, CONTROLLER_FRAMEWORK, generated, CONTROLLER_SOURCE_FILES,
                     lambda guid: controller_config(slave, desc, design, guid), dest, cc)
+
+
+def build_native_description_fmus(description: Path | str, designs: Sequence[str], dest: Path | str,
+                                  cc: str = "gcc") -> dict[str, Path]:
+    """The native plant FMU of a plant description file and, where n_m = n_e = 1 with constant M, a native
+    controller FMU per design of `designs`: model identifier -> path. The twins are the FMUs
+    `emcosim plant build` makes (the slave classes of fmus.models.device_slave_classes)."""
+    from components import codegen
+
+    from .build import load_device_module
+    from .models import device_slave_classes
+
+    description = Path(description).resolve()
+    desc = load(description)
+    with tempfile.TemporaryDirectory(prefix="emcosim_native_") as tmp:
+        module = Path(tmp) / f"{description.stem.lower()}_model.py"
+        module.write_text(codegen.module_source(desc, description.name))
+        classes = device_slave_classes(load_device_module(module), list(designs))
+        with tempfile.TemporaryDirectory() as resources:
+            slaves = {name: cls(instance_name="native-build", resources=resources) for name, cls in classes.items()}
+    out = {desc.name: _build(slaves.pop(desc.name), desc, dest, cc)}
+    for identifier, slave in slaves.items():
+        out[identifier] = _build_controller(slave, desc, slave.design, dest, cc)
+    return out
+
+
+def build_native_description(description: Path | str, dest: Path | str, cc: str = "gcc") -> Path:
+    """The native plant FMU of a plant description file (TOML) into dest/<name>.fmu (its twin: the plant FMU
+    `emcosim plant build` makes)."""
+    paths = build_native_description_fmus(description, [], dest, cc)
+    return next(iter(paths.values()))
 
 
 def main(argv: list[str] | None = None) -> int:

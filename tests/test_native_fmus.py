@@ -18,6 +18,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Model
 from fmpy.validation import validate_fmu
 
+from components.ph_plant import Jet
 from fmus.native_build import GENERATOR, build_native
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -365,10 +366,13 @@ def test_entry_points(tmp_path: Path, capsys) -> None:
     solenoid = DESCRIPTIONS[[p.stem for p in DESCRIPTIONS].index("solenoid")]
     assert main(["plant", "build", str(solenoid), "--out", str(tmp_path / "cli"), "--native"]) == 0
     out = capsys.readouterr().out
-    assert (tmp_path / "cli" / "Solenoid.fmu").is_file() and "native controllers are not generated yet" in out
-    assert read_model_description(str(tmp_path / "cli" / "Solenoid.fmu")).generationTool == GENERATOR
+    built = sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert built == ["Solenoid.fmu", "Solenoid_Proposition1.fmu", "Solenoid_Theorem2.fmu"], out
+    for name in built:
+        assert read_model_description(str(tmp_path / "cli" / name)).generationTool == GENERATOR
+        assert validate_fmu(str(tmp_path / "cli" / name)) == []
     assert build_script.main(["--native", "--dest", str(tmp_path / "paper")]) == 0
-    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == ["MEMS.fmu", "Maglev.fmu"]
+    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == sorted(f"{n}.fmu" for n in PLANTS + CONTROLLERS)
     bad = tmp_path / "bad.toml"
     bad.write_text(solenoid.read_text().replace('name = "Solenoid"', 'name = "Solenoid"\nnonsense = 1'))
     assert main(["plant", "build", str(bad), "--out", str(tmp_path / "bad"), "--native"]) == 1
@@ -554,3 +558,31 @@ def test_paper_scenario_all_native(native, native_controllers, fmu_dir, tmp_path
     for name in runs[0].dtype.names[1:]:
         scale = np.max(np.abs(runs[0][name])) or 1.0
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
+
+
+def test_description_controllers_equal_the_python_laws(tmp_path: Path) -> None:
+    """The native controller FMUs of examples/solenoid (Proposition 1, Theorem 2) against the hand-written numpy
+    laws of the generated device (components.codegen.device) at random states and jets, to 1e-12."""
+    from components import codegen
+    from components.description import load
+    from fmus.native_build import build_native_description_fmus
+    toml = DESCRIPTIONS[[p.stem for p in DESCRIPTIONS].index("solenoid")]
+    desc = load(toml)
+    device = codegen.device(desc)
+    paths = build_native_description_fmus(toml, ["Proposition1", "Theorem2"], tmp_path)
+    rng = np.random.default_rng(9)
+    for design in ("Proposition1", "Theorem2"):
+        identifier = f"{desc.name}_{design}"
+        fmu, vr = slave(paths[identifier], identifier)
+        controller = device.controller(design)
+        inputs = [v.name for v in read_model_description(str(paths[identifier])).modelVariables if v.causality == "input"]
+        x0 = np.array(fmu.getReal([vr[i] for i in inputs]))
+        scale = np.where(x0 != 0, np.abs(x0), 1e-3 * np.max(np.abs(x0)))
+        for _ in range(20):
+            x = x0 + rng.uniform(-0.1, 0.1, len(x0)) * scale
+            fmu.setReal([vr[i] for i in inputs], list(x))
+            jet = Jet(*(np.array([v]) for v in x[3:])) if len(x) > 3 else None
+            want = float(controller.u(x[:3], jet)[0])
+            assert fmu.getReal([vr["u"]])[0] == pytest.approx(want, rel=1e-12, abs=1e-13 * abs(want))
+        fmu.terminate()
+        fmu.freeInstance()

@@ -123,17 +123,20 @@ def cmd_build(args) -> int:
 
 
 def _build_native(desc, designs: list[str], out: Path) -> int:
-    """`plant build --native`: the native plant FMU (fmus.native_build); native controllers and the Reference
-    are not generated yet."""
-    from fmus.native_build import NativeBuildError, build_native_description
+    """`plant build --native`: the native plant FMU and, for a one-degree-of-freedom plant, a native controller
+    FMU per design (fmus.native_build); the Reference is not generated natively yet."""
+    from fmus.native_build import NativeBuildError, build_native_description_fmus
 
+    one_dof = desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass
     try:
-        path = build_native_description(desc.source, out)
+        paths = build_native_description_fmus(desc.source, designs if one_dof else [], out)
     except (NativeBuildError, ValueError) as exc:
         raise _describe(exc) from None
-    print(f"built       {path}")
-    for design in designs:
-        print(f"not built   {desc.name}_{design}: native controllers are not generated yet (docs/native-fmus.md)")
+    for path in paths.values():
+        print(f"built       {path}")
+    if not one_dof:
+        for design in designs:
+            print(f"not built   {desc.name}_{design}: native controllers need n_m = n_e = 1 (docs/native-fmus.md)")
     return 0
 
 

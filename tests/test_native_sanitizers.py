@@ -1,4 +1,5 @@
-"""The native FMUs' C under AddressSanitizer and UndefinedBehaviorSanitizer: tests/native/sanitize_host.c,
+"""The native FMUs C under AddressSanitizer and UndefinedBehaviorSanitizer: tests/native/sanitize_host.c (plants)
+and sanitize_controller.c (controllers),
 compiled with the sources of each native plant FMU (-fsanitize=address,undefined, no recovery), runs both
 interfaces legally and every illegal call it knows; each status must be the expected one and the
 sanitizers must stay silent."""
@@ -11,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from fmus.native_build import SOURCE_FILES, build_native
+from fmus.native_build import CONTROLLER_SOURCE_FILES, SOURCE_FILES, build_native, build_native_controller
 
 HOST = Path(__file__).resolve().parent / "native" / "sanitize_host.c"
+CONTROLLER_HOST = Path(__file__).resolve().parent / "native" / "sanitize_controller.c"
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 
@@ -23,20 +25,23 @@ def _sanitizers_work(tmp: Path) -> bool:
     return run.returncode == 0 and subprocess.run([str(tmp / "probe")], capture_output=True).returncode == 0
 
 
-@pytest.mark.parametrize("name", ["MEMS", "Maglev"])
+@pytest.mark.parametrize("name", ["MEMS", "Maglev", "MEMS_Proposition1", "Maglev_Theorem3"])
 def test_sanitizers(tmp_path: Path, name: str) -> None:
     if not _sanitizers_work(tmp_path):
         pytest.skip("gcc cannot build or run AddressSanitizer programs here (libasan, libubsan)")
-    fmu = build_native(name, tmp_path)
+    controller = "_" in name
+    fmu = (build_native_controller if controller else build_native)(name, tmp_path)
     sources = tmp_path / "sources"
+    sources.mkdir()
     with zipfile.ZipFile(fmu) as z:
         for member in z.namelist():
             if member.startswith("sources/"):
-                (sources / Path(member).name).parent.mkdir(exist_ok=True)
                 (sources / Path(member).name).write_bytes(z.read(member))
+    files = CONTROLLER_SOURCE_FILES if controller else SOURCE_FILES
     command = ["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-g", "-O1", "-fno-omit-frame-pointer",
-               "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-I", str(sources), str(HOST),
-               *(str(sources / f) for f in SOURCE_FILES), "-o", str(tmp_path / "host"), "-lm"]
+               "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-I", str(sources),
+               str(CONTROLLER_HOST if controller else HOST), *(str(sources / f) for f in files),
+               "-o", str(tmp_path / "host"), "-lm"]
     subprocess.run(command, check=True, capture_output=True, text=True)
     run = subprocess.run([str(tmp_path / "host")], capture_output=True, text=True, timeout=120,
                          env={"ASAN_OPTIONS": "detect_leaks=1:abort_on_error=0", "UBSAN_OPTIONS": "print_stacktrace=1"})

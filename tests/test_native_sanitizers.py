@@ -1,6 +1,6 @@
 """The native FMUs C under AddressSanitizer and UndefinedBehaviorSanitizer: tests/native/sanitize_host.c (plants)
 and sanitize_controller.c (controllers),
-compiled with the sources of each native plant FMU (-fsanitize=address,undefined, no recovery), runs both
+compiled with the sources of a native FMU (-fsanitize=address,undefined, no recovery), runs both
 interfaces legally and every illegal call it knows; each status must be the expected one and the
 sanitizers must stay silent."""
 from __future__ import annotations

@@ -372,7 +372,8 @@ def test_entry_points(tmp_path: Path, capsys) -> None:
         assert read_model_description(str(tmp_path / "cli" / name)).generationTool == GENERATOR
         assert validate_fmu(str(tmp_path / "cli" / name)) == []
     assert build_script.main(["--native", "--dest", str(tmp_path / "paper")]) == 0
-    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == sorted(f"{n}.fmu" for n in PLANTS + CONTROLLERS)
+    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == sorted(f"{n}.fmu" for n in
+                                                                           (*PLANTS, *CONTROLLERS, "Reference"))
     bad = tmp_path / "bad.toml"
     bad.write_text(solenoid.read_text().replace('name = "Solenoid"', 'name = "Solenoid"\nnonsense = 1'))
     assert main(["plant", "build", str(bad), "--out", str(tmp_path / "bad"), "--native"]) == 1
@@ -536,9 +537,10 @@ def test_controller_refusals(native_controllers) -> None:
 @pytest.mark.parametrize("scenario, interface, tol", [("maglev_tracking_D-1_R0.82", "CoSimulation", 1e-10),
                                                       ("maglev_tracking_D-1_R0.82", "ModelExchange", 1e-6),
                                                       ("mems_tracking_Dd0", "CoSimulation", 1e-6)])
-def test_paper_scenario_all_native(native, native_controllers, fmu_dir, tmp_path: Path, scenario, interface, tol) -> None:
-    """A paper tracking scenario with the native plant and controller (the Reference stays pythonfmu) gives the
-    all-pythonfmu run's results. Measured: maglev CS 8e-13, ME 4e-8 (LSODA at the scenario's tolerance);
+def test_paper_scenario_all_native(native, native_controllers, native_reference, fmu_dir, tmp_path: Path, scenario,
+                                   interface, tol) -> None:
+    """A paper tracking scenario with every FMU native (plant, controller, Reference) gives the all-pythonfmu
+    run's results. Measured: maglev CS 8e-13, ME 4e-8 (LSODA at the scenario's tolerance);
     mems_tracking_Dd0 CS 7e-9."""
     from emcosim.cli import main
     root = Path(__file__).resolve().parents[1]
@@ -546,7 +548,7 @@ def test_paper_scenario_all_native(native, native_controllers, fmu_dir, tmp_path
     mixed.mkdir()
     for fmu in fmu_dir.glob("*.fmu"):
         shutil.copy2(fmu, mixed / fmu.name)
-    for path in (*native.values(), *native_controllers.values()):
+    for path in (*native.values(), *native_controllers.values(), native_reference):
         shutil.copy2(path, mixed / path.name)
     runs = []
     for folder, label in ((fmu_dir, "py"), (mixed, "native")):
@@ -586,3 +588,69 @@ def test_description_controllers_equal_the_python_laws(tmp_path: Path) -> None:
             assert fmu.getReal([vr["u"]])[0] == pytest.approx(want, rel=1e-12, abs=1e-13 * abs(want))
         fmu.terminate()
         fmu.freeInstance()
+
+
+@pytest.fixture(scope="module")
+def native_reference(tmp_path_factory) -> Path:
+    from fmus.native_build import build_native_reference
+    return build_native_reference(tmp_path_factory.mktemp("native_reference"))
+
+
+def test_reference_equals_components_references(native_reference, fmus) -> None:
+    """The native Reference: validate clean, the twin's interface; its jet and output derivatives (orders 1-3)
+    equal components.references' derivatives at random kinds, parameters and times (CS); refusals."""
+    from fmpy.fmi2 import FMU2Slave
+
+    from components import catalog
+    assert validate_fmu(str(native_reference)) == []
+    roots = []
+    for fmu in (native_reference, fmus["Reference"]):
+        with zipfile.ZipFile(fmu) as z:
+            roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
+    for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions"):
+        assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), tag
+    md = read_model_description(str(native_reference))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    jet = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
+    folder = extract(str(native_reference))
+    rng = np.random.default_rng(2)
+    for kind in (0, 1, 2, 2, 1):
+        values = {"q_d": rng.uniform(-1, 1) * 1e-5, "offset": rng.uniform(0, 0.1), "amplitude": rng.uniform(0, 0.1),
+                  "omega": rng.uniform(0, 50), "phase": rng.uniform(-3, 3), "q_from": rng.uniform(0, 3e-5),
+                  "q_to": rng.uniform(0, 3e-5), "t_start": rng.uniform(0, 0.01), "duration": rng.uniform(1e-3, 0.02)}
+        truth = catalog.reference(kind, values)
+        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="Reference", instanceName="r")
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        f.setInteger([vr["kind"]], [kind])
+        f.setReal([vr[n] for n in values], list(values.values()))
+        f.exitInitializationMode()
+        t, h = 0.0, 1e-3
+        for k in range(30):
+            want = truth.derivatives(f.getReal([vr["time"]])[0], 6)            # at the FMU's own clock
+            np.testing.assert_allclose(f.getReal([vr[n] for n in jet]), want[:4], rtol=1e-13, atol=1e-300)
+            for order in (1, 2, 3):
+                got = f.getRealOutputDerivatives([vr[n] for n in jet], [order] * 4)
+                np.testing.assert_allclose(got, want[order:order + 4], rtol=1e-12, atol=1e-300)
+            f.doStep(t, h)
+            t = (k + 1) * h
+        f.terminate()
+        f.freeInstance()
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="Reference", instanceName="r")
+    f.instantiate()
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setInteger([vr["kind"]], [5])
+    with pytest.raises(FMICallException):
+        f.exitInitializationMode()
+    f.setInteger([vr["kind"]], [2])
+    f.setReal([vr["duration"]], [0.0])
+    with pytest.raises(FMICallException):
+        f.exitInitializationMode()
+    f.setInteger([vr["kind"]], [1])                                  # duration is the smooth step's alone
+    f.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        f.getRealOutputDerivatives([vr["q_star"]], [4])
+    f.terminate()
+    f.freeInstance()

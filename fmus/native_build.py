@@ -10,6 +10,8 @@ generator's name, <SourceFiles>), and carries
                    (components.c_codegen: the model functions), config.c, emc_config.h (from the twin's
                    variables: the value references), the FMI 2.0 headers
     binaries/linux64/<identifier>.so   compiled from sources/ (-std=c99 -Wall -Wextra -Werror; no libpython)
+    binaries/win64/<identifier>.dll    cross-compiled with mingw-w64 where it is installed (imports only
+                                       KERNEL32.dll and msvcrt.dll)
 It provides Model Exchange only (docs/native-fmus.md says what is missing).
 """
 from __future__ import annotations
@@ -37,6 +39,13 @@ FRAMEWORK = ("emc_fmi2.c", "emc_framework.h")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 SOURCE_FILES = ("emc_fmi2.c", "model.c", "config.c")          # compiled together (<SourceFiles>)
 CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-fPIC", "-shared")
+# win64: Debian's gcc-mingw-w64-x86-64; mingw's own printf (msvcrt's knows no %zu), no PE timestamp and stripped
+# and a fixed image base (reproducible: the same bytes from any build folder; auto-image-base hashes the path),
+# libgcc linked in: the DLL imports KERNEL32.dll and msvcrt.dll alone (checked with objdump)
+MINGW = "x86_64-w64-mingw32-gcc"
+MINGW_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-shared", "-D__USE_MINGW_ANSI_STDIO=1",
+               "-static-libgcc", "-Wl,--no-insert-timestamp", "-Wl,--disable-auto-image-base", "-s")
+WIN64_IMPORTS = {"kernel32.dll", "msvcrt.dll"}
 OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}   # as the twin (fmus/build.py)
 PAPER_PLANTS = {"MEMS": PLANTS / "mems.toml", "Maglev": PLANTS / "maglev.toml"}
 PAPER_FMUS = ("MEMS", "Maglev", "MEMS_Proposition1", "MEMS_Theorem2", "Maglev_Proposition2", "Maglev_Theorem3",
@@ -152,6 +161,24 @@ def _build(slave, desc: Description, dest: Path | str, cc: str) -> Path:
     return _package(slave, FRAMEWORK, generated, SOURCE_FILES, lambda guid: config_sources(slave, desc, guid), dest, cc)
 
 
+def win64_available() -> bool:
+    """Is the mingw-w64 cross compiler (and its objdump) installed?"""
+    return shutil.which(MINGW) is not None and shutil.which("x86_64-w64-mingw32-objdump") is not None
+
+
+def compile_win64(sources: Path, library: Path, files: tuple[str, ...]) -> None:
+    """Cross-compile `files` of sources/ into the win64 DLL `library` and check that it imports only system
+    libraries (WIN64_IMPORTS); NativeBuildError otherwise."""
+    command = [MINGW, *MINGW_FLAGS, "-I", ".", *files, "-o", str(library.resolve())]
+    run = subprocess.run(command, cwd=sources, capture_output=True, text=True)     # relative paths: reproducible
+    if run.returncode != 0:
+        raise NativeBuildError(f"native FMUs: cross-compiling for win64 failed:\n{' '.join(command)}\n{run.stderr}")
+    dump = subprocess.run(["x86_64-w64-mingw32-objdump", "-p", str(library)], capture_output=True, text=True)
+    imports = {line.split(":", 1)[1].strip().lower() for line in dump.stdout.splitlines() if "DLL Name:" in line}
+    if dump.returncode != 0 or not imports or not imports <= WIN64_IMPORTS:
+        raise NativeBuildError(f"native FMUs: {library.name} imports {sorted(imports)}, not only {sorted(WIN64_IMPORTS)}")
+
+
 def _package(slave, framework: tuple[str, ...], generated: dict[str, str], source_files: tuple[str, ...],
              config, dest: Path | str, cc: str) -> Path:
     """Write dest/<identifier>.fmu: the modelDescription of `slave` (the twin) in its native form, sources/
@@ -177,6 +204,10 @@ def _package(slave, framework: tuple[str, ...], generated: dict[str, str], sourc
         for path in sorted(sources.iterdir()):
             files[f"sources/{path.name}"] = path.read_bytes()
         files[f"binaries/linux64/{identifier}.so"] = library.read_bytes()
+        if win64_available():                  # a binary for Windows where the cross compiler is installed
+            dll = Path(work) / f"{identifier}.dll"
+            compile_win64(sources, dll, source_files)
+            files[f"binaries/win64/{identifier}.dll"] = dll.read_bytes()
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     target = dest / f"{identifier}.fmu"

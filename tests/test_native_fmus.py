@@ -358,9 +358,11 @@ def test_description_plants_equal_the_python_model(tmp_path: Path, toml: Path) -
     cs.freeInstance()
 
 
+@pytest.mark.slow
 def test_entry_points(tmp_path: Path, capsys) -> None:
-    """`emcosim plant build FILE --out DIR --native` writes the native plant FMU and says which controllers it
-    did not build; `build.py --native` the paper's native plants; a failure is exit 1 with the CLI's last line."""
+    """`emcosim plant build FILE --out DIR --native` writes the native plant FMU and controllers of a description;
+    `build.py --native` the paper's seven; a failure is exit 1 with the CLI's last line. Marked
+    slow: it builds ten native FMUs (about 45 s on a loaded 2-core machine with mingw-w64)."""
     import build as build_script
     from emcosim.cli import main
     solenoid = DESCRIPTIONS[[p.stem for p in DESCRIPTIONS].index("solenoid")]

@@ -556,10 +556,32 @@ fmi2Status fmi2CancelStep(fmi2Component component)
         return fail(c, fmi2Discard, "%s: doStep never runs asynchronously here (no status to ask)", #function); \
     }
 STATUS(fmi2GetStatus, fmi2Status)
-STATUS(fmi2GetRealStatus, fmi2Real)
 STATUS(fmi2GetIntegerStatus, fmi2Integer)
-STATUS(fmi2GetBooleanStatus, fmi2Boolean)
 STATUS(fmi2GetStringStatus, fmi2String)
+
+/* fmi2LastSuccessfulTime: the FMU's time (the end of its last successful step) */
+fmi2Status fmi2GetRealStatus(fmi2Component component, const fmi2StatusKind s, fmi2Real *value)
+{
+    ENTER("fmi2GetRealStatus", M_STEP | M_TERMINATED);
+    ONLY("fmi2GetRealStatus", fmi2CoSimulation);
+    if (value == NULL) return fail(c, fmi2Error, "fmi2GetRealStatus: value is NULL");
+    if (s != fmi2LastSuccessfulTime)
+        return fail(c, fmi2Discard, "fmi2GetRealStatus: status kind %d is not provided (fmi2LastSuccessfulTime is)", (int)s);
+    *value = c->d.time;
+    return fmi2OK;
+}
+
+/* fmi2Terminated: false (the FMU never asks to end the simulation after a step it discarded) */
+fmi2Status fmi2GetBooleanStatus(fmi2Component component, const fmi2StatusKind s, fmi2Boolean *value)
+{
+    ENTER("fmi2GetBooleanStatus", M_STEP | M_TERMINATED);
+    ONLY("fmi2GetBooleanStatus", fmi2CoSimulation);
+    if (value == NULL) return fail(c, fmi2Error, "fmi2GetBooleanStatus: value is NULL");
+    if (s != fmi2Terminated)
+        return fail(c, fmi2Discard, "fmi2GetBooleanStatus: status kind %d is not provided (fmi2Terminated is)", (int)s);
+    *value = fmi2False;
+    return fmi2OK;
+}
 
 /* ---- Model Exchange: no continuous states, no event indicators ----------------------------------- */
 fmi2Status fmi2EnterEventMode(fmi2Component component)

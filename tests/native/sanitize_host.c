@@ -197,6 +197,16 @@ static void co_simulation(void)
     EXPECT(fmi2DoStep(c, t, 1e3, fmi2True), fmi2Discard);              /* the polynomial overflows */
     EXPECT(fmi2SetFMUstate(c, s), fmi2OK);
     EXPECT(fmi2FreeFMUstate(c, &s), fmi2OK);
+    {
+        fmi2Real last = -1.0;
+        fmi2Boolean terminated = fmi2True;
+        EXPECT(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &last), fmi2OK);
+        CHECK(last == t);
+        EXPECT(fmi2GetBooleanStatus(c, fmi2Terminated, &terminated), fmi2OK);
+        CHECK(terminated == fmi2False);
+        EXPECT(fmi2GetBooleanStatus(c, fmi2Terminated, NULL), fmi2Error);
+        EXPECT(fmi2GetRealStatus(c, fmi2DoStepStatus, &last), fmi2Discard);
+    }
     EXPECT(fmi2CancelStep(c), fmi2Error);
     EXPECT(fmi2EnterEventMode(c), fmi2Error);
     EXPECT(fmi2Terminate(c), fmi2OK);

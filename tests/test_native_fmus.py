@@ -384,17 +384,20 @@ def test_entry_points(tmp_path: Path, capsys) -> None:
 
 
 @pytest.mark.skipif(shutil.which("clang") is None, reason="needs clang")
-def test_sources_compile_with_clang(native, tmp_path: Path) -> None:
-    """sources/ compile with clang -std=c99 -Wall -Wextra -Werror -pedantic as with gcc (fmus.native_build)."""
-    from fmus.native_build import compile_sources
-    sources = tmp_path / "sources"
-    sources.mkdir()
-    with zipfile.ZipFile(native["MEMS"]) as z:
-        for member in z.namelist():
-            if member.startswith("sources/"):
-                (sources / Path(member).name).write_bytes(z.read(member))
-    compile_sources(sources, tmp_path / "MEMS.so", cc="clang", extra=("-pedantic",))
-    assert (tmp_path / "MEMS.so").stat().st_size > 0
+def test_sources_compile_with_clang(native, native_controllers, native_reference, tmp_path: Path) -> None:
+    """sources/ of a plant, a controller and the Reference compile with clang -std=c99 -Wall -Wextra -Werror
+    -pedantic as with gcc (fmus.native_build)."""
+    from fmus.native_build import CONTROLLER_SOURCE_FILES, REFERENCE_SOURCE_FILES, SOURCE_FILES, compile_sources
+    for fmu, files in ((native["MEMS"], SOURCE_FILES), (native_controllers["Maglev_Theorem3"], CONTROLLER_SOURCE_FILES),
+                       (native_reference, REFERENCE_SOURCE_FILES)):
+        sources = tmp_path / fmu.stem / "sources"
+        sources.mkdir(parents=True)
+        with zipfile.ZipFile(fmu) as z:
+            for member in z.namelist():
+                if member.startswith("sources/"):
+                    (sources / Path(member).name).write_bytes(z.read(member))
+        compile_sources(sources, tmp_path / f"{fmu.stem}.so", cc="clang", extra=("-pedantic",), files=files)
+        assert (tmp_path / f"{fmu.stem}.so").stat().st_size > 0
 
 
 @pytest.mark.skipif(shutil.which("cmake") is None, reason="needs cmake")

@@ -17,6 +17,7 @@ It provides Model Exchange only (docs/native-fmus.md says what is missing).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import shutil
 import subprocess
 import sys
@@ -379,7 +380,9 @@ def build_native_description_fmus(description: Path | str, designs: Sequence[str
     with tempfile.TemporaryDirectory(prefix="emcosim_native_") as tmp:
         module = Path(tmp) / f"{description.stem.lower()}_model.py"
         module.write_text(codegen.module_source(desc, description.name))
-        classes = device_slave_classes(load_device_module(module), list(designs))
+        # the device identity of the pythonfmu twins (fmus.build.build_description): the digest of the file
+        model = hashlib.sha256(description.read_bytes()).hexdigest()
+        classes = device_slave_classes(load_device_module(module), list(designs), model=model)
         with tempfile.TemporaryDirectory() as resources:
             slaves = {name: cls(instance_name="native-build", resources=resources) for name, cls in classes.items()}
     out = {desc.name: _build(slaves.pop(desc.name), desc, dest, cc)}

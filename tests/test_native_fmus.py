@@ -342,17 +342,19 @@ def test_description_plants_equal_the_python_model(tmp_path: Path, toml: Path) -
     fmu.terminate()
     fmu.freeInstance()
     cs, cs_vr = slave(path, desc.name)
-    u0 = 1.1 * np.array(cs.getReal([cs_vr[i] for i in inputs])) + 0.01      # off the start's equilibrium
+    u0 = 1.01 * np.array(cs.getReal([cs_vr[i] for i in inputs])) + 1e-3     # off the start's equilibrium
     cs.setReal([cs_vr[i] for i in inputs], list(u0))
     stepper = make_stepper(plant, rtol=1e-8)
     eta, moved = eta0.copy(), 0.0
-    h = float(md.defaultExperiment.stepSize)
-    for k in range(10):
+    h = float(md.defaultExperiment.stepSize) / 10     # open loops are unstable: stay clear of the boundary
+    for k in range(200):                          # until the state has moved (at least 10 steps)
         cs.doStep(k * h, h)
         eta = stepper.step(eta, u0 if len(u0) > 1 else u0[0], h)
         moved = max(moved, float(np.max(np.abs(eta - eta0) / scale)))
+        if k >= 9 and moved > 1e-4:
+            break
     got = np.array(cs.getReal([cs_vr[s] for s in states]))
-    assert moved > 1e-4                                        # the comparison is not of two resting states
+    assert moved > 1e-4                           # the comparison (to 1e-6) is not of two resting states
     assert np.all(np.abs(got - eta) <= 1e-6 * scale), (got, eta)
     cs.terminate()
     cs.freeInstance()

@@ -37,7 +37,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--force", action="store_true", help="rebuild even if the inputs are unchanged")
     parser.add_argument("--docs", action="store_true", help="regenerate the variable tables of docs/fmus.md")
     parser.add_argument("--no-ssp", action="store_true", help="do not pack the scenarios into build/ssp/*.ssp")
+    parser.add_argument("--native", action="store_true", help="build the native (C) FMUs instead, into "
+                        "build/native (or --dest): docs/native-fmus.md")
     args = parser.parse_args(argv)
+    if args.native:
+        from fmus.native_build import main as native_main
+        dest = args.dest if args.dest != str(ROOT / "build" / "fmus") else str(ROOT / "build" / "native")
+        return native_main(["--dest", dest])
     try:
         paths = build(args.dest, force=args.force)
     except BuildError as exc:

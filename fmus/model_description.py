@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import uuid
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 from xml.etree.ElementTree import Element, SubElement, tostring
 
@@ -48,6 +49,16 @@ class DeviceIdentity(NamedTuple):
     role: str
 
 
+@dataclass(frozen=True)
+class Native:
+    """What differs in the modelDescription of a native FMU (fmus/native_build.py): no execution tool, the
+    generator's name, the C files of sources/ (<SourceFiles>), and whether it provides Co-Simulation."""
+
+    generation_tool: str
+    source_files: tuple[str, ...]
+    co_simulation: bool
+
+
 def _flag(value: bool) -> str:
     return "true" if value else "false"
 
@@ -56,28 +67,35 @@ def _number(value: float | int) -> str:
     return repr(int(value)) if isinstance(value, int) else repr(float(value))
 
 
-def model_description(slave: Any, build: str, options: dict[str, bool]) -> Element:
+def model_description(slave: Any, build: str, options: dict[str, bool], native: Native | None = None) -> Element:
     """The modelDescription of `slave` (an EMSlave after `declare`); options: canGetAndSetFMUstate,
-    canSerializeFMUstate."""
+    canSerializeFMUstate; `native`: the native form of the same FMU (fmus/native_build.py)."""
     variables: list[Variable] = slave.variables
     index = {v.name: i + 1 for i, v in enumerate(variables)}
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": slave.model_identifier, "guid": "",
         "description": slave.summary, "author": type(slave).author, "license": type(slave).license,
         "version": type(slave).version,
-        "generationTool": f"emcosim (pythonfmu {PYTHONFMU_VERSION})", "variableNamingConvention": "structured",
+        "generationTool": native.generation_tool if native else f"emcosim (pythonfmu {PYTHONFMU_VERSION})",
+        "variableNamingConvention": "structured",
         "numberOfEventIndicators": str(slave.number_of_event_indicators),
     })
     state = {"canGetAndSetFMUstate": _flag(options.get("canGetAndSetFMUstate", False)),
              "canSerializeFMUstate": _flag(options.get("canSerializeFMUstate", False))}
-    common = {"modelIdentifier": slave.model_identifier, "needsExecutionTool": "true",
+    common = {"modelIdentifier": slave.model_identifier, "needsExecutionTool": "false" if native else "true",
               "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true", **state,
               "providesDirectionalDerivative": _flag(slave.provides_directional_derivative)}
-    SubElement(root, "ModelExchange", {**common, "completedIntegratorStepNotNeeded": "true"})
-    SubElement(root, "CoSimulation", {
-        **common, "canHandleVariableCommunicationStepSize": "true",
-        "canInterpolateInputs": _flag(slave.can_interpolate_inputs),
-        "maxOutputDerivativeOrder": str(int(slave.max_output_derivative_order))})
+    interfaces = [SubElement(root, "ModelExchange", {**common, "completedIntegratorStepNotNeeded": "true"})]
+    if native is None or native.co_simulation:
+        interfaces.append(SubElement(root, "CoSimulation", {
+            **common, "canHandleVariableCommunicationStepSize": "true",
+            "canInterpolateInputs": _flag(slave.can_interpolate_inputs),
+            "maxOutputDerivativeOrder": str(int(slave.max_output_derivative_order))}))
+    if native is not None:                   # FMI 2.0, section 2.2.8: the C sources of a source FMU
+        for node in interfaces:
+            files = SubElement(node, "SourceFiles")
+            for name in native.source_files:
+                SubElement(files, "File", {"name": name})
 
     units = SubElement(root, "UnitDefinitions")
     for name in sorted({v.unit for v in variables if v.unit is not None}):

@@ -110,6 +110,31 @@ def build_fmus_of(description: str | Path, out: Path, progress: Callable[[str], 
     return paths
 
 
+def build_native_fmus_of(description: str | Path, out: Path,
+                         progress: Callable[[str], None] | None = None) -> dict[str, Path]:
+    """`plant build --native`: the native (C, self-contained) plant FMU of a description file and, for a
+    plant of one degree of freedom, a native controller FMU per design that applies (fmus.native_build);
+    the Reference is not generated natively for a device yet. NativeBuildError for a missing compiler."""
+    from fmus.native_build import build_native_description_fmus
+
+    from . import registry
+
+    say = progress or (lambda line: None)
+    desc, report, device = registry.load(description)
+    designs = list(device.designs)
+    check_device_names(device, designs, out)
+    for line in report.not_applicable():                # "<design>: <why>"
+        say(f"not built   {device.name}_{line}")
+    one_dof = desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass
+    paths = build_native_description_fmus(desc.source, designs if one_dof else [], out)
+    for path in paths.values():
+        say(f"built       {path}")
+    if not one_dof:
+        for design in designs:
+            say(f"not built   {desc.name}_{design}: native controllers need n_m = n_e = 1 (docs/native-fmus.md)")
+    return paths
+
+
 def scenario_of(description: str | Path, out: str | Path, controller: str, stop_time: float, step_size: float, *,
                 fmu_dir: str | Path | None = None, q_d: Sequence[float] | None = None, references: Sequence = (),
                 q0: Sequence[float] | None = None, p0: Sequence[float] | None = None,

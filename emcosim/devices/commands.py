@@ -1,7 +1,7 @@
 """`emcosim plant check | build | scenario`: from a plant description file to FMUs and a closed-loop scenario.
 
     emcosim plant check FILE [--q-d Q ...] [--reference SPEC ...] [--json OUT]
-    emcosim plant build FILE --out DIR
+    emcosim plant build FILE --out DIR [--native]
     emcosim plant scenario FILE --controller DESIGN --out DIR --stop-time T --step-size H [...]
 
 check: which of Assumptions 1-4 hold, each with its test, and which designs apply (components.plant_check).
@@ -54,6 +54,8 @@ def add_parser(sub) -> None:
     build.add_argument("file")
     build.add_argument("--out", required=True, help="folder for the FMUs")
     build.add_argument("--operating-point", metavar="RULE", help=OPERATING_POINT_HELP)
+    build.add_argument("--native", action="store_true",
+                       help="build native (C, self-contained) FMUs instead (docs/native-fmus.md)")
     build.set_defaults(func=cmd_build)
 
     scen = psub.add_parser("scenario", help="write an SSP scenario: the plant in closed loop with one controller")
@@ -127,13 +129,15 @@ def cmd_check(args) -> int:
 
 def cmd_build(args) -> int:
     from fmus.build import BuildError
+    from fmus.native_build import NativeBuildError
 
-    from .build import build_fmus_of, description_file
+    from .build import build_fmus_of, build_native_fmus_of, description_file
 
+    build = build_native_fmus_of if args.native else build_fmus_of
     try:
         with description_file(args.file, args.operating_point) as file:
-            build_fmus_of(file, Path(args.out), progress=lambda line: print(line, flush=True))
-    except (BuildError, ValueError) as exc:            # a wrong description or --operating-point
+            build(file, Path(args.out), progress=lambda line: print(line, flush=True))
+    except (BuildError, NativeBuildError, ValueError) as exc:            # a wrong description or --operating-point
         raise _describe(exc) from None
     return 0
 

@@ -1,0 +1,714 @@
+"""Native plant FMUs (fmus/native_build.py): C from the description, the framework of fmus/native/.
+
+Truths: fmpy's validation; the pythonfmu twin (build/fmus), run in the same way through fmpy, at random
+states and inputs; the FMI 2.0 state machine (FMI 2.0, section 3.2.3); ldd.
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Model
+from fmpy.validation import validate_fmu
+
+from components.ph_plant import Jet
+from fmus.native_build import GENERATOR, build_native
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+PLANTS = ("MEMS", "Maglev")
+DISCARD, ERROR = 2, 3
+
+
+@pytest.fixture(scope="module")
+def native(tmp_path_factory) -> dict[str, Path]:
+    dest = tmp_path_factory.mktemp("native")
+    return {name: build_native(name, dest) for name in PLANTS}
+
+
+def test_validate_and_self_contained(native) -> None:
+    for name, path in native.items():
+        assert validate_fmu(str(path)) == []
+        md = read_model_description(str(path))
+        assert md.modelExchange.needsExecutionTool is False and md.coSimulation.needsExecutionTool is False
+        assert md.generationTool == GENERATOR
+        with zipfile.ZipFile(path) as z:
+            names = set(z.namelist())
+            listed = {f.get("name") for f in ElementTree.fromstring(z.read("modelDescription.xml")).iter("File")}
+        assert listed and all(f"sources/{f}" in names for f in listed)
+        folder = Path(extract(str(path)))
+        ldd = subprocess.run(["ldd", str(folder / "binaries" / "linux64" / f"{name}.so")], capture_output=True,
+                             text=True, check=True).stdout
+        assert "libpython" not in ldd and "libc.so" in ldd
+
+
+def _strip(element: ElementTree.Element) -> list:
+    return [(e.tag, sorted(e.attrib.items())) for e in element.iter()]
+
+
+def test_same_interface_as_the_twin(native, fmus) -> None:
+    """Variables (names, value references, units, descriptions, starts, nominals), units, ModelStructure and
+    DefaultExperiment are the twin's, element by element."""
+    for name, path in native.items():
+        roots = []
+        for fmu in (path, fmus[name]):
+            with zipfile.ZipFile(fmu) as z:
+                roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
+        for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions"):
+            assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), (name, tag)
+        for interface in ("ModelExchange", "CoSimulation"):
+            twin = roots[1].find(interface).attrib
+            mine = roots[0].find(interface).attrib
+            assert {k: v for k, v in mine.items() if k != "needsExecutionTool"} == \
+                {k: v for k, v in twin.items() if k != "needsExecutionTool"}
+
+
+class Instance:
+    """An ME instance through fmpy, initialized, in continuous-time mode."""
+
+    def __init__(self, path: Path, name: str):
+        md = read_model_description(str(path))
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        self.fmu = FMU2Model(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=name, instanceName=name)
+        self.fmu.instantiate()
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+        self.fmu.newDiscreteStates()
+        self.fmu.enterContinuousTimeMode()
+
+    def at(self, eta: np.ndarray, u: float) -> dict[str, np.ndarray]:
+        self.fmu.setReal([self.vr["u"]], [u])
+        self.fmu.setContinuousStates(eta.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 3)
+        dx = np.zeros(3)
+        self.fmu.getDerivatives(dx.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 3)
+        names = ["q", "p", "x_e", "H", "der(q)", "der(p)", "der(x_e)"]
+        out = {"dx": dx, "real": np.array(self.fmu.getReal([self.vr[n] for n in names]))}
+        knowns = [self.vr[n] for n in ("q", "p", "x_e", "u")]
+        unknowns = [self.vr[n] for n in ("der(q)", "der(p)", "der(x_e)", "H")]
+        out["jac"] = np.array([self.fmu.getDirectionalDerivative(unknowns, knowns, list(seed))
+                               for seed in np.eye(4)])
+        z = np.zeros(1)
+        self.fmu.getEventIndicators(z.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 1)
+        nominal = np.zeros(3)
+        self.fmu.getNominalsOfContinuousStates(
+            nominal.ctypes.data_as(np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)), 3)
+        out["z"], out["nominal"] = z, nominal
+        return out
+
+    def close(self) -> None:
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+@pytest.mark.parametrize("name", PLANTS)
+def test_equal_to_the_twin_at_random_states(native, fmus, name) -> None:
+    from components.catalog import DEVICES
+    from components.plant_step import nominal_scale
+    plant = DEVICES[name].plant()
+    scale = nominal_scale(plant)
+    rng = np.random.default_rng(7)
+    a, b = Instance(native[name], name), Instance(fmus[name], name)
+    try:
+        count = 0
+        while count < 25:
+            eta = np.array([rng.uniform(-1.5, 1.5), rng.uniform(-3, 3), rng.uniform(-3, 3)]) * scale
+            if not plant.domain_margin(eta) > 0:
+                continue
+            count += 1
+            u = float(rng.uniform(-30, 30))
+            got, want = a.at(eta, u), b.at(eta, u)
+            for key in want:
+                w = np.asarray(want[key], dtype=float)
+                np.testing.assert_allclose(got[key], w, rtol=1e-12, atol=1e-14 * float(np.max(np.abs(w))),
+                                           err_msg=f"{name} {key} at {eta}, u = {u}")
+    finally:
+        a.close()
+        b.close()
+
+
+def test_state_machine_and_bad_values(native) -> None:
+    """Calls outside the state machine and non-finite or out-of-domain values: fmi2Error (fmi2Discard for
+    derivatives that are not finite), the instance still usable."""
+    md = read_model_description(str(native["MEMS"]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Model(guid=md.guid, unzipDirectory=extract(str(native["MEMS"])), modelIdentifier="MEMS", instanceName="m")
+    fmu.instantiate()
+    ptr = np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)
+    x = np.array([1e-6, 0.0, 0.0])
+
+    def status(call) -> int:
+        try:
+            call()
+        except FMICallException as exc:
+            return exc.status
+        return 0
+
+    assert status(lambda: fmu.setContinuousStates(x.ctypes.data_as(ptr), 3)) == ERROR       # before initialization
+    assert status(lambda: fmu.getDerivatives(x.ctypes.data_as(ptr), 3)) == ERROR
+    assert status(lambda: fmu.getReal([vr["q"]])) == ERROR
+    assert status(lambda: fmu.setReal([vr["m"]], [float("nan")])) == ERROR
+    assert status(lambda: fmu.setReal([999], [1.0])) == ERROR
+    assert status(lambda: fmu.setReal([vr["q"]], [1.0])) == ERROR                              # an output
+    assert status(lambda: fmu.setReal([vr["c1"]], [-1.0])) == 0                               # checked at exit
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    assert status(lambda: fmu.exitInitializationMode()) == ERROR                              # c1 > 0
+    fmu.setReal([vr["c1"]], [35.6e-9])
+    fmu.exitInitializationMode()
+    assert status(lambda: fmu.setReal([vr["c1"]], [1.0])) == ERROR                           # fixed after init
+    fmu.newDiscreteStates()
+    fmu.enterContinuousTimeMode()
+    bad = np.array([float("nan"), 0.0, 0.0])
+    assert status(lambda: fmu.setContinuousStates(bad.ctypes.data_as(ptr), 3)) == ERROR
+    edge = np.array([-15e-6, 0.0, 1e-10])                                                     # q = -c0: Psi infinite
+    fmu.setContinuousStates(edge.ctypes.data_as(ptr), 3)
+    dx = np.zeros(3)
+    assert status(lambda: fmu.getDerivatives(dx.ctypes.data_as(ptr), 3)) == DISCARD
+    fmu.enterEventMode()
+    assert status(lambda: fmu.newDiscreteStates()) == ERROR                                   # outside the domain
+    c = np.ctypeslib.ctypes
+    assert fmu.dll.fmi2DoStep(c.c_void_p(fmu.component), c.c_double(0.0), c.c_double(1e-6), c.c_int(1)) == ERROR   # a CS function
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_fmpy_simulates_as_model_exchange(native, fmus) -> None:
+    """fmpy's CVode runs both forms from the DefaultExperiment to the same trajectory."""
+    from fmpy import simulate_fmu
+    for name in PLANTS:
+        runs = [simulate_fmu(str(p), fmi_type="ModelExchange", relative_tolerance=1e-8, stop_time=0.01 if name == "Maglev"
+                             else 1e-4) for p in (native[name], fmus[name])]
+        for key in ("q", "p", "x_e"):
+            scale = np.max(np.abs(runs[1][key])) or 1.0
+            assert np.max(np.abs(runs[0][key][-1] - runs[1][key][-1])) < 1e-6 * scale
+
+
+def test_co_simulation_equals_the_twin(native, fmus) -> None:
+    """fmpy runs both forms as Co-Simulation over their DefaultExperiment (Maglev 500 steps, MEMS 900 steps
+    at rtol 1e-8): the native RODAS4 (no closed-form electrical layer) and the twin's PlantStepper agree."""
+    from fmpy import simulate_fmu
+    for name in PLANTS:
+        runs = [simulate_fmu(str(p), fmi_type="CoSimulation") for p in (native[name], fmus[name])]
+        for key in ("q", "p", "x_e", "H"):
+            assert np.max(np.abs(runs[0][key] - runs[1][key])) <= 1e-9 * np.max(np.abs(runs[1][key])), (name, key)
+
+
+def slave(path: Path, name: str):
+    from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=name, instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, {v.name: v.valueReference for v in md.modelVariables}
+
+
+def test_co_simulation_polynomial_inputs_and_output_derivatives(native) -> None:
+    """Input polynomials of order 3 through fmi2SetRealInputDerivatives against scipy's Radau at 1e-11
+    (components.plant_step.simulate_polynomial); the output derivatives against ph_plant's numpy
+    time_derivatives at the input in force (the end of the last step's polynomial); FMU state round trip."""
+    from components.catalog import DEVICES
+    from components.plant_step import simulate_polynomial
+    plant = DEVICES["Maglev"].plant()
+    fmu, vr = slave(native["Maglev"], "Maglev")
+    eta0 = np.array(fmu.getReal([vr["q"], vr["p"], vr["x_e"]]))
+    h, inputs = 2e-3, [(1.0 + 0.1 * k, 30.0, -400.0, 5e3) for k in range(20)]
+    for k, (u, *rates) in enumerate(inputs):
+        fmu.setReal([vr["u"]], [u])
+        fmu.setRealInputDerivatives([vr["u"]] * 3, [1, 2, 3], rates)
+        fmu.doStep(k * h, h)
+    got = np.array(fmu.getReal([vr["q"], vr["p"], vr["x_e"]]))
+    want = simulate_polynomial(plant, eta0, h, inputs, rtol=1e-11)[-1]
+    from components.plant_step import nominal_scale
+    assert np.all(np.abs(got - want) <= 1e-7 * nominal_scale(plant))
+    u, du, d2u, d3u = inputs[-1]
+    u_end, du_end = u + h * (du + h * (d2u / 2 + h * d3u / 6)), du + h * (d2u + h * d3u / 2)
+    first, second, H1, H2 = plant.time_derivatives(got, [u_end], [du_end])
+    names = ["q", "p", "x_e", "H"]
+    for order, truth in ((1, [*first, H1]), (2, [*second, H2])):
+        values = fmu.getRealOutputDerivatives([vr[n] for n in names], [order] * 4)
+        np.testing.assert_allclose(values, truth, rtol=1e-12, atol=1e-14 * np.max(np.abs(truth)))
+    # FMU state: a step repeated from a saved (and a serialized) state is bit-identical
+    state = fmu.getFMUstate()
+    blob = fmu.serializeFMUstate(state)
+    t = len(inputs) * h
+    fmu.doStep(t, h)
+    first_try = fmu.getReal([vr["q"], vr["p"], vr["x_e"]])
+    fmu.setFMUstate(state)
+    fmu.doStep(t, h)
+    assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == first_try
+    restored = fmu.deSerializeFMUstate(blob)
+    fmu.setFMUstate(restored)
+    fmu.doStep(t, h)
+    assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == first_try
+    bad = bytearray(blob)
+    bad[-8:] = np.array([np.nan]).tobytes()                  # a non-finite entry: refused
+    with pytest.raises(FMICallException):
+        fmu.deSerializeFMUstate(bytes(bad))
+    fmu.freeFMUstate(state)
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_co_simulation_refusals(native) -> None:
+    """doStep at the wrong time, a step <= 0, an order out of range: fmi2Error; a state leaving the domain in a
+    step: fmi2Discard with the state kept; ME functions in a CS instance: fmi2Error."""
+    fmu, vr = slave(native["Maglev"], "Maglev")
+    c = np.ctypeslib.ctypes
+    me = fmu.dll.fmi2GetDerivatives
+    assert me(c.c_void_p(fmu.component), (c.c_double * 3)(), c.c_size_t(3)) == ERROR
+    for call in (lambda: fmu.doStep(1.0, 1e-3), lambda: fmu.doStep(0.0, 0.0),
+                 lambda: fmu.setRealInputDerivatives([vr["u"]], [0], [1.0]),
+                 lambda: fmu.setRealInputDerivatives([vr["q"]], [1], [1.0]),
+                 lambda: fmu.getRealOutputDerivatives([vr["q"]], [3])):
+        with pytest.raises(FMICallException) as info:
+            call()
+        assert info.value.status == ERROR
+    before = fmu.getReal([vr["q"], vr["p"], vr["x_e"]])
+    fmu.setReal([vr["u"]], [-2000.0])                          # pulls the flux down: the ball falls... and
+    fmu.setReal([vr["u"]], [2000.0])                           # pushes it up into the magnet at q = c
+    with pytest.raises(FMICallException) as info:
+        fmu.doStep(0.0, 0.5)
+    assert info.value.status == DISCARD
+    assert fmu.getReal([vr["q"], vr["p"], vr["x_e"]]) == before
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+DESCRIPTIONS = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*/*.toml"))
+
+
+@pytest.mark.parametrize("toml", DESCRIPTIONS, ids=[p.stem for p in DESCRIPTIONS])
+def test_description_plants_equal_the_python_model(tmp_path: Path, toml: Path) -> None:
+    """The native plant FMU of an example description (`emcosim plant build FILE --native`), any n_m, n_e:
+    derivatives, Jacobian, nominals and event indicator against the generated Python plant (components.codegen,
+    ph_plant's numpy composition, plant_step.nominal_scale) at random states; doStep against
+    components.plant_step.make_stepper over ten held-input steps."""
+    from components import codegen
+    from components.description import load
+    from components.plant_step import make_stepper, nominal_scale
+    from fmus.native_build import build_native_description
+    desc = load(toml)
+    plant = codegen.plant_class(desc)()
+    path = build_native_description(toml, tmp_path)
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    states = [v.name for v in (*desc.q, *desc.p, *desc.x_e)]
+    inputs = [v.name for v in desc.u]
+    n = len(states)
+    fmu = FMU2Model(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=desc.name, instanceName="x")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.newDiscreteStates()
+    fmu.enterContinuousTimeMode()
+    ptr = np.ctypeslib.ctypes.POINTER(np.ctypeslib.ctypes.c_double)
+    scale = nominal_scale(plant)
+    nominal = np.zeros(n)
+    fmu.getNominalsOfContinuousStates(nominal.ctypes.data_as(ptr), n)
+    np.testing.assert_allclose(nominal, scale, rtol=1e-12)
+    eta0 = np.array(fmu.getReal([vr[s] for s in states]))
+    rng = np.random.default_rng(3)
+    count = 0
+    for _ in range(2000):
+        eta = eta0 + rng.uniform(-0.5, 0.5, n) * scale
+        if not plant.domain_margin(eta) > 0 or count == 20:
+            continue
+        count += 1
+        u = rng.uniform(-2, 2, len(inputs))
+        fmu.setReal([vr[i] for i in inputs], list(u))
+        fmu.setContinuousStates(eta.ctypes.data_as(ptr), n)
+        dx, z = np.zeros(n), np.zeros(1)
+        fmu.getDerivatives(dx.ctypes.data_as(ptr), n)
+        fmu.getEventIndicators(z.ctypes.data_as(ptr), 1)
+        f = plant.f(eta, u)
+        np.testing.assert_allclose(dx, f, rtol=1e-12, atol=1e-14 * np.max(np.abs(f)))
+        np.testing.assert_allclose(z[0], plant.domain_margin(eta), rtol=1e-12)
+        J = np.hstack([plant.jacobian(eta), plant.g()])
+        knowns = [vr[s] for s in states + inputs]
+        got = np.array([fmu.getDirectionalDerivative([vr[f"der({s})"] for s in states], knowns, list(seed))
+                        for seed in np.eye(n + len(inputs))]).T
+        np.testing.assert_allclose(got, J, rtol=1e-12, atol=1e-14 * np.max(np.abs(J)))
+    assert count == 20
+    fmu.terminate()
+    fmu.freeInstance()
+    cs, cs_vr = slave(path, desc.name)
+    u0 = 1.01 * np.array(cs.getReal([cs_vr[i] for i in inputs])) + 1e-3     # off the start's equilibrium
+    cs.setReal([cs_vr[i] for i in inputs], list(u0))
+    stepper = make_stepper(plant, rtol=1e-8)
+    eta, moved = eta0.copy(), 0.0
+    h = float(md.defaultExperiment.stepSize) / 10     # open loops are unstable: stay clear of the boundary
+    for k in range(200):                          # until the state has moved (at least 10 steps)
+        cs.doStep(k * h, h)
+        eta = stepper.step(eta, u0 if len(u0) > 1 else u0[0], h)
+        moved = max(moved, float(np.max(np.abs(eta - eta0) / scale)))
+        if k >= 9 and moved > 1e-4:
+            break
+    got = np.array(cs.getReal([cs_vr[s] for s in states]))
+    assert moved > 1e-4                           # the comparison (to 1e-6) is not of two resting states
+    assert np.all(np.abs(got - eta) <= 1e-6 * scale), (got, eta)
+    cs.terminate()
+    cs.freeInstance()
+
+
+@pytest.mark.slow
+def test_entry_points(tmp_path: Path, capsys) -> None:
+    """`emcosim plant build FILE --out DIR --native` writes the native plant FMU and controllers of a description;
+    `build.py --native` the paper's seven; a failure is exit 1 with the CLI's last line. Marked
+    slow: it builds ten native FMUs (about 45 s on a loaded 2-core machine with mingw-w64)."""
+    import build as build_script
+    from emcosim.cli import main
+    solenoid = DESCRIPTIONS[[p.stem for p in DESCRIPTIONS].index("solenoid")]
+    assert main(["plant", "build", str(solenoid), "--out", str(tmp_path / "cli"), "--native"]) == 0
+    out = capsys.readouterr().out
+    built = sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert built == ["Solenoid.fmu", "Solenoid_Proposition1.fmu", "Solenoid_Theorem2.fmu"], out
+    for name in built:
+        assert read_model_description(str(tmp_path / "cli" / name)).generationTool == GENERATOR
+        assert validate_fmu(str(tmp_path / "cli" / name)) == []
+    assert build_script.main(["--native", "--dest", str(tmp_path / "paper")]) == 0
+    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == sorted(f"{n}.fmu" for n in
+                                                                           (*PLANTS, *CONTROLLERS, "Reference"))
+    bad = tmp_path / "bad.toml"
+    bad.write_text(solenoid.read_text().replace('name = "Solenoid"', 'name = "Solenoid"\nnonsense = 1'))
+    assert main(["plant", "build", str(bad), "--out", str(tmp_path / "bad"), "--native"]) == 1
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("emcosim: error: ")
+    assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.skipif(shutil.which("clang") is None, reason="needs clang")
+def test_sources_compile_with_clang(native, native_controllers, native_reference, tmp_path: Path) -> None:
+    """sources/ of a plant, a controller and the Reference compile with clang -std=c99 -Wall -Wextra -Werror
+    -pedantic as with gcc (fmus.native_build)."""
+    from fmus.native_build import CONTROLLER_SOURCE_FILES, REFERENCE_SOURCE_FILES, SOURCE_FILES, compile_sources
+    for fmu, files in ((native["MEMS"], SOURCE_FILES), (native_controllers["Maglev_Theorem3"], CONTROLLER_SOURCE_FILES),
+                       (native_reference, REFERENCE_SOURCE_FILES)):
+        sources = tmp_path / fmu.stem / "sources"
+        sources.mkdir(parents=True)
+        with zipfile.ZipFile(fmu) as z:
+            for member in z.namelist():
+                if member.startswith("sources/"):
+                    (sources / Path(member).name).write_bytes(z.read(member))
+        compile_sources(sources, tmp_path / f"{fmu.stem}.so", cc="clang", extra=("-pedantic",), files=files)
+        assert (tmp_path / f"{fmu.stem}.so").stat().st_size > 0
+
+
+@pytest.mark.skipif(shutil.which("cmake") is None, reason="needs cmake")
+def test_fmpy_compiles_the_sources(native, tmp_path: Path) -> None:
+    """fmpy's build_platform_binary (CMake) compiles sources/ of <SourceFiles> into a binary that runs."""
+    from fmpy import simulate_fmu
+    from fmpy.build import build_platform_binary
+    folder = tmp_path / "Maglev"
+    with zipfile.ZipFile(native["Maglev"]) as z:
+        for member in z.namelist():
+            if not member.startswith("binaries/"):
+                z.extract(member, folder)
+    build_platform_binary(folder, all_warnings=True)
+    assert (folder / "binaries" / "linux64" / "Maglev.so").is_file()
+    runs = [simulate_fmu(str(p), fmi_type="CoSimulation", stop_time=0.05) for p in (folder, native["Maglev"])]
+    np.testing.assert_allclose(runs[0]["q"], runs[1]["q"], rtol=1e-12)
+
+
+@pytest.mark.parametrize("scenario, interface, tol", [("maglev_regulation_prop2", "CoSimulation", 1e-10),
+                                                      ("maglev_regulation_prop2", "ModelExchange", 1e-9),
+                                                      ("mems_regulation_prop1", "CoSimulation", 1e-6)])
+def test_paper_scenario_with_the_native_plant(native, fmu_dir, tmp_path: Path, scenario: str, interface: str,
+                                              tol: float) -> None:
+    """A paper scenario runs through the engine (`emcosim run --fmu-dir`) with the native plant beside the
+    pythonfmu controller, and gives the pythonfmu run's results (relative to each variable's maximum).
+    Measured: Maglev CS 2e-12, ME 1e-11; MEMS CS 4e-8 (the twin's closed-form electrical layer against RODAS4
+    at the scenario's rtol)."""
+    from emcosim.cli import main
+    root = Path(__file__).resolve().parents[1]
+    mixed = tmp_path / "fmus"
+    mixed.mkdir()
+    for fmu in fmu_dir.glob("*.fmu"):
+        shutil.copy2(fmu, mixed / fmu.name)
+    plant = "Maglev" if scenario.startswith("maglev") else "MEMS"
+    shutil.copy2(native[plant], mixed / f"{plant}.fmu")
+    runs = []
+    for folder, label in ((fmu_dir, "py"), (mixed, "native")):
+        out = tmp_path / f"{label}.csv"
+        assert main(["run", str(root / "scenarios" / scenario), "--fmu-dir", str(folder), "--interface-type", interface,
+                     "--no-progress", "-o", str(out)]) == 0
+        runs.append(np.genfromtxt(out, delimiter=",", names=True))
+    assert len(runs[0]) == len(runs[1]) > 100
+    for name in runs[0].dtype.names[1:]:
+        scale = np.max(np.abs(runs[0][name])) or 1.0
+        assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
+
+
+CONTROLLERS = ("MEMS_Proposition1", "MEMS_Theorem2", "Maglev_Proposition2", "Maglev_Theorem3")
+
+
+@pytest.fixture(scope="module")
+def native_controllers(tmp_path_factory) -> dict[str, Path]:
+    from fmus.native_build import build_native_controller
+    dest = tmp_path_factory.mktemp("native_controllers")
+    return {name: build_native_controller(name, dest) for name in CONTROLLERS}
+
+
+def test_controllers_validate_with_the_twins_interface(native_controllers, fmus) -> None:
+    for name, path in native_controllers.items():
+        assert validate_fmu(str(path)) == []
+        roots = []
+        for fmu in (path, fmus[name]):
+            with zipfile.ZipFile(fmu) as z:
+                roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
+        for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions", "VendorAnnotations"):
+            assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), (name, tag)
+        for interface in ("ModelExchange", "CoSimulation"):
+            mine, twin = (dict(r.find(interface).attrib) for r in roots)
+            assert mine.pop("needsExecutionTool") == "false" and twin.pop("needsExecutionTool") == "true"
+            assert mine == twin
+
+
+@pytest.mark.parametrize("name", CONTROLLERS)
+def test_controller_equals_the_twin(native_controllers, fmus, name) -> None:
+    """u, its directional derivatives (every input) and du/dt from input rates: the symbolic law and
+    Jacobian in C against the twin's numpy law and complex step, at 20 random inputs, to 1e-12."""
+    a, vr = slave(native_controllers[name], name)
+    b, _ = slave(fmus[name], name)
+    inputs = [v.name for v in read_model_description(str(fmus[name])).modelVariables if v.causality == "input"]
+    x0 = np.array(a.getReal([vr[i] for i in inputs]))
+    scale = np.where(x0 != 0, np.abs(x0), 1e-3 * np.max(np.abs(x0)))
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        x = x0 + rng.uniform(-0.1, 0.1, len(x0)) * scale
+        rates = list(rng.uniform(-1, 1, len(x0)) * scale)
+        got, want = [], []
+        for f, out in ((a, got), (b, want)):
+            f.setReal([vr[i] for i in inputs], list(x))
+            out.append(f.getReal([vr["u"]])[0])
+            out += [f.getDirectionalDerivative([vr["u"]], [vr[i]], [1.0])[0] for i in inputs]
+            f.setRealInputDerivatives([vr[i] for i in inputs], [1] * len(inputs), rates)
+            out.append(f.getRealOutputDerivatives([vr["u"]], [1])[0])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * max(abs(want[0]), 1.0))
+    for f in (a, b):
+        f.terminate()
+        f.freeInstance()
+
+
+def test_controller_refusals(native_controllers) -> None:
+    """strict = 1, a set point outside the domain, D_d against eq. (pHcondition) (Proposition 1), a reference
+    past the magnet (Theorem 3), a NaN input: fmi2Error at initialization or at fmi2GetReal (fmi2Discard in
+    doStep), never a number."""
+    from fmpy.fmi2 import FMU2Slave
+
+    def fresh(name: str):
+        path = native_controllers[name]
+        md = read_model_description(str(path))
+        f = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier=name, instanceName=name)
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        return f, {v.name: v.valueReference for v in md.modelVariables}
+
+    for name, setting in (("MEMS_Proposition1", ("q_d", -1.0)), ("MEMS_Proposition1", ("D_d", 1.0)),
+                          ("Maglev_Proposition2", ("k_c", -1.0)), ("MEMS_Theorem2", ("rbar_e", 0.0))):
+        f, vr = fresh(name)
+        f.setReal([vr[setting[0]]], [setting[1]])
+        with pytest.raises(FMICallException):
+            f.exitInitializationMode()
+        f.freeInstance()
+    f, vr = fresh("Maglev_Theorem3")
+    f.setInteger([vr["strict"]], [1])
+    with pytest.raises(FMICallException):
+        f.exitInitializationMode()
+    f.setInteger([vr["strict"]], [0])
+    f.exitInitializationMode()
+    f.setReal([vr["q_star"]], [0.006])                           # past the magnet at c = 0.005
+    with pytest.raises(FMICallException):
+        f.getReal([vr["u"]])
+    with pytest.raises(FMICallException) as info:
+        f.doStep(0.0, 0.01)
+    assert info.value.status == DISCARD
+    f.setReal([vr["q_star"]], [0.0025])
+    assert np.isfinite(f.getReal([vr["u"]])[0])
+    with pytest.raises(FMICallException):
+        f.setReal([vr["q"]], [float("nan")])
+    f.doStep(0.0, 0.01)
+    f.terminate()
+    f.freeInstance()
+
+
+@pytest.mark.parametrize("scenario, interface, tol", [("maglev_tracking_D-1_R0.82", "CoSimulation", 1e-10),
+                                                      ("maglev_tracking_D-1_R0.82", "ModelExchange", 1e-6),
+                                                      ("mems_tracking_Dd0", "CoSimulation", 1e-6)])
+def test_paper_scenario_all_native(native, native_controllers, native_reference, fmu_dir, tmp_path: Path, scenario,
+                                   interface, tol) -> None:
+    """A paper tracking scenario with every FMU native (plant, controller, Reference) gives the all-pythonfmu
+    run's results. Measured: maglev CS 8e-13, ME 4e-8 (LSODA at the scenario's tolerance);
+    mems_tracking_Dd0 CS 7e-9."""
+    from emcosim.cli import main
+    root = Path(__file__).resolve().parents[1]
+    mixed = tmp_path / "fmus"
+    mixed.mkdir()
+    for fmu in fmu_dir.glob("*.fmu"):
+        shutil.copy2(fmu, mixed / fmu.name)
+    for path in (*native.values(), *native_controllers.values(), native_reference):
+        shutil.copy2(path, mixed / path.name)
+    runs = []
+    for folder, label in ((fmu_dir, "py"), (mixed, "native")):
+        out = tmp_path / f"{label}.csv"
+        assert main(["run", str(root / "scenarios" / scenario), "--fmu-dir", str(folder), "--interface-type", interface,
+                     "--no-progress", "-o", str(out)]) == 0
+        runs.append(np.genfromtxt(out, delimiter=",", names=True))
+    assert len(runs[0]) == len(runs[1]) > 10
+    for name in runs[0].dtype.names[1:]:
+        scale = np.max(np.abs(runs[0][name])) or 1.0
+        assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
+
+
+def test_description_controllers_equal_the_python_laws(tmp_path: Path) -> None:
+    """The native controller FMUs of examples/solenoid (Proposition 1, Theorem 2) against the hand-written numpy
+    laws of the generated device (components.codegen.device) at random states and jets, to 1e-12."""
+    from components import codegen
+    from components.description import load
+    from fmus.native_build import build_native_description_fmus
+    toml = DESCRIPTIONS[[p.stem for p in DESCRIPTIONS].index("solenoid")]
+    desc = load(toml)
+    device = codegen.device(desc)
+    paths = build_native_description_fmus(toml, ["Proposition1", "Theorem2"], tmp_path)
+    rng = np.random.default_rng(9)
+    for design in ("Proposition1", "Theorem2"):
+        identifier = f"{desc.name}_{design}"
+        fmu, vr = slave(paths[identifier], identifier)
+        controller = device.controller(design)
+        inputs = [v.name for v in read_model_description(str(paths[identifier])).modelVariables if v.causality == "input"]
+        x0 = np.array(fmu.getReal([vr[i] for i in inputs]))
+        scale = np.where(x0 != 0, np.abs(x0), 1e-3 * np.max(np.abs(x0)))
+        for _ in range(20):
+            x = x0 + rng.uniform(-0.1, 0.1, len(x0)) * scale
+            fmu.setReal([vr[i] for i in inputs], list(x))
+            jet = Jet(*(np.array([v]) for v in x[3:])) if len(x) > 3 else None
+            want = float(controller.u(x[:3], jet)[0])
+            assert fmu.getReal([vr["u"]])[0] == pytest.approx(want, rel=1e-12, abs=1e-13 * abs(want))
+        fmu.terminate()
+        fmu.freeInstance()
+
+
+@pytest.fixture(scope="module")
+def native_reference(tmp_path_factory) -> Path:
+    from fmus.native_build import build_native_reference
+    return build_native_reference(tmp_path_factory.mktemp("native_reference"))
+
+
+def test_reference_equals_components_references(native_reference, fmus) -> None:
+    """The native Reference: validate clean, the twin's interface; its jet and output derivatives (orders 1-3)
+    equal components.references' derivatives at random kinds, parameters and times (CS); refusals."""
+    from fmpy.fmi2 import FMU2Slave
+
+    from components import catalog
+    assert validate_fmu(str(native_reference)) == []
+    roots = []
+    for fmu in (native_reference, fmus["Reference"]):
+        with zipfile.ZipFile(fmu) as z:
+            roots.append(ElementTree.fromstring(z.read("modelDescription.xml")))
+    for tag in ("ModelVariables", "ModelStructure", "DefaultExperiment", "UnitDefinitions"):
+        assert _strip(roots[0].find(tag)) == _strip(roots[1].find(tag)), tag
+    md = read_model_description(str(native_reference))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    jet = ["q_star", "q_star_dot", "q_star_ddot", "q_star_dddot"]
+    folder = extract(str(native_reference))
+    rng = np.random.default_rng(2)
+    for kind in (0, 1, 2, 2, 1):
+        values = {"q_d": rng.uniform(-1, 1) * 1e-5, "offset": rng.uniform(0, 0.1), "amplitude": rng.uniform(0, 0.1),
+                  "omega": rng.uniform(0, 50), "phase": rng.uniform(-3, 3), "q_from": rng.uniform(0, 3e-5),
+                  "q_to": rng.uniform(0, 3e-5), "t_start": rng.uniform(0, 0.01), "duration": rng.uniform(1e-3, 0.02)}
+        truth = catalog.reference(kind, values)
+        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="Reference", instanceName="r")
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        f.setInteger([vr["kind"]], [kind])
+        f.setReal([vr[n] for n in values], list(values.values()))
+        f.exitInitializationMode()
+        t, h = 0.0, 1e-3
+        for k in range(30):
+            want = truth.derivatives(f.getReal([vr["time"]])[0], 6)            # at the FMU's own clock
+            np.testing.assert_allclose(f.getReal([vr[n] for n in jet]), want[:4], rtol=1e-13, atol=1e-300)
+            for order in (1, 2, 3):
+                got = f.getRealOutputDerivatives([vr[n] for n in jet], [order] * 4)
+                np.testing.assert_allclose(got, want[order:order + 4], rtol=1e-12, atol=1e-300)
+            f.doStep(t, h)
+            t = (k + 1) * h
+        f.terminate()
+        f.freeInstance()
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="Reference", instanceName="r")
+    f.instantiate()
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setInteger([vr["kind"]], [5])
+    with pytest.raises(FMICallException):
+        f.exitInitializationMode()
+    f.setInteger([vr["kind"]], [2])
+    f.setReal([vr["duration"]], [0.0])
+    with pytest.raises(FMICallException):
+        f.exitInitializationMode()
+    f.setInteger([vr["kind"]], [1])                                  # duration is the smooth step's alone
+    f.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        f.getRealOutputDerivatives([vr["q_star"]], [4])
+    f.terminate()
+    f.freeInstance()
+
+
+def test_win64_binaries(native, native_controllers, native_reference, tmp_path: Path) -> None:
+    """Where mingw-w64 is installed every native FMU carries binaries/win64/<id>.dll that imports only
+    KERNEL32.dll and msvcrt.dll; a rebuild in another folder gives the same FMU bytes (reproducible)."""
+    from fmus.native_build import build_native, win64_available
+    if not win64_available():
+        pytest.skip("mingw-w64 is not installed (Debian: gcc-mingw-w64-x86-64)")
+    for path in (*native.values(), *native_controllers.values(), native_reference):
+        name = path.stem
+        with zipfile.ZipFile(path) as z:
+            dll = z.read(f"binaries/win64/{name}.dll")
+        (tmp_path / f"{name}.dll").write_bytes(dll)
+        dump = subprocess.run(["x86_64-w64-mingw32-objdump", "-p", str(tmp_path / f"{name}.dll")], capture_output=True,
+                              text=True, check=True).stdout
+        imports = {line.split(":", 1)[1].strip().lower() for line in dump.splitlines() if "DLL Name:" in line}
+        assert imports == {"kernel32.dll", "msvcrt.dll"}, (name, imports)
+        assert "fmi2DoStep" in dump and "fmi2GetDerivatives" in dump                 # the exported FMI functions
+    again = build_native("Maglev", tmp_path / "again")
+    assert again.read_bytes() == native["Maglev"].read_bytes()
+
+
+WINE = next((w for w in (shutil.which("wine64"), "/usr/lib/wine/wine64") if w and Path(w).is_file()), None)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(WINE is None, reason="needs wine64 (Debian: wine64)")
+def test_win64_binary_runs_under_wine_as_linux64(native, tmp_path: Path) -> None:
+    """tests/native/portable_host.c, built for linux64 and for win64, loads the Maglev FMU's binary of its
+    platform (the win64 one under wine64): ME derivatives at five states and 200 CS steps with an input
+    polynomial print the same 17-digit numbers (measured: identical). About 20 s (wine's first start)."""
+    from fmus.native_build import win64_available
+    if not win64_available():
+        pytest.skip("mingw-w64 is not installed (Debian: gcc-mingw-w64-x86-64)")
+    folder = Path(extract(str(native["Maglev"])))
+    guid = read_model_description(str(native["Maglev"])).guid
+    host = Path(__file__).resolve().parent / "native" / "portable_host.c"
+    flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(folder / "sources"), str(host)]
+    subprocess.run(["gcc", *flags, "-o", str(tmp_path / "host"), "-ldl"], check=True, capture_output=True)
+    subprocess.run(["x86_64-w64-mingw32-gcc", *flags, "-o", str(tmp_path / "host.exe"), "-static-libgcc"], check=True,
+                   capture_output=True)
+    linux = subprocess.run([str(tmp_path / "host"), str(folder / "binaries" / "linux64" / "Maglev.so"), guid],
+                           capture_output=True, text=True, check=True).stdout
+    env = {"WINEPREFIX": str(tmp_path / "prefix"), "WINEDEBUG": "-all", "HOME": str(tmp_path),
+           "PATH": "/usr/bin:/bin"}
+    dll = "Z:" + str(folder / "binaries" / "win64" / "Maglev.dll").replace("/", "\\")
+    windows = subprocess.run([WINE, str(tmp_path / "host.exe"), dll, guid], capture_output=True, text=True,
+                             env=env, timeout=300)
+    assert windows.returncode == 0, windows.stderr[-2000:]
+    assert linux.count("\n") == 15
+    assert windows.stdout.replace("\r", "") == linux

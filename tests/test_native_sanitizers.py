@@ -1,0 +1,75 @@
+"""The native FMUs C under AddressSanitizer and UndefinedBehaviorSanitizer: tests/native/sanitize_host.c (plants)
+and sanitize_controller.c (controllers),
+compiled with the sources of a native FMU (-fsanitize=address,undefined, no recovery), runs both
+interfaces legally and every illegal call it knows; each status must be the expected one and the
+sanitizers must stay silent."""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from fmus.native_build import CONTROLLER_SOURCE_FILES, SOURCE_FILES, build_native, build_native_controller
+
+HOST = Path(__file__).resolve().parent / "native" / "sanitize_host.c"
+CONTROLLER_HOST = Path(__file__).resolve().parent / "native" / "sanitize_controller.c"
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+
+
+def _sanitizers_work(tmp: Path) -> bool:
+    (tmp / "probe.c").write_text("int main(void) { return 0; }\n")
+    run = subprocess.run(["gcc", "-fsanitize=address,undefined", "probe.c", "-o", "probe"], cwd=tmp, capture_output=True)
+    return run.returncode == 0 and subprocess.run([str(tmp / "probe")], capture_output=True).returncode == 0
+
+
+@pytest.mark.parametrize("name", ["MEMS", "Maglev", "MEMS_Proposition1", "Maglev_Theorem3"])
+def test_sanitizers(tmp_path: Path, name: str) -> None:
+    if not _sanitizers_work(tmp_path):
+        pytest.skip("gcc cannot build or run AddressSanitizer programs here (libasan, libubsan)")
+    controller = "_" in name
+    fmu = (build_native_controller if controller else build_native)(name, tmp_path)
+    sources = tmp_path / "sources"
+    sources.mkdir()
+    with zipfile.ZipFile(fmu) as z:
+        for member in z.namelist():
+            if member.startswith("sources/"):
+                (sources / Path(member).name).write_bytes(z.read(member))
+    files = CONTROLLER_SOURCE_FILES if controller else SOURCE_FILES
+    command = ["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-g", "-O1", "-fno-omit-frame-pointer",
+               "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-I", str(sources),
+               str(CONTROLLER_HOST if controller else HOST), *(str(sources / f) for f in files),
+               "-o", str(tmp_path / "host"), "-lm"]
+    subprocess.run(command, check=True, capture_output=True, text=True)
+    run = subprocess.run([str(tmp_path / "host")], capture_output=True, text=True, timeout=120,
+                         env={"ASAN_OPTIONS": "detect_leaks=1:abort_on_error=0", "UBSAN_OPTIONS": "print_stacktrace=1"})
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr
+    assert "0 mismatches" in run.stderr
+
+
+@pytest.mark.parametrize("name", ["MEMS", "Maglev"])
+def test_instances_are_independent_across_threads(tmp_path: Path, name: str) -> None:
+    """tests/native/threads_host.c under ThreadSanitizer: four CS instances in four threads at once give the
+    results each gives alone, bit for bit, and TSan reports no data race."""
+    (tmp_path / "probe.c").write_text("int main(void) { return 0; }\n")
+    probe = subprocess.run(["gcc", "-fsanitize=thread", "probe.c", "-o", "probe"], cwd=tmp_path, capture_output=True)
+    if probe.returncode != 0 or subprocess.run([str(tmp_path / "probe")], capture_output=True).returncode != 0:
+        pytest.skip("gcc cannot build or run ThreadSanitizer programs here")
+    fmu = build_native(name, tmp_path)
+    sources = tmp_path / "sources"
+    sources.mkdir()
+    with zipfile.ZipFile(fmu) as z:
+        for member in z.namelist():
+            if member.startswith("sources/"):
+                (sources / Path(member).name).write_bytes(z.read(member))
+    host = Path(__file__).resolve().parent / "native" / "threads_host.c"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-g", "-O1", "-fsanitize=thread", "-pthread",
+                    "-I", str(sources), str(host), *(str(sources / f) for f in SOURCE_FILES), "-o", str(tmp_path / "host"),
+                    "-lm"], check=True, capture_output=True, text=True)
+    run = subprocess.run([str(tmp_path / "host")], capture_output=True, text=True, timeout=120,
+                         env={"TSAN_OPTIONS": "halt_on_error=1"})
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "ThreadSanitizer" not in run.stderr and "0 mismatches" in run.stderr

@@ -57,8 +57,14 @@ class NativeBuildError(RuntimeError):
     """A native FMU cannot be built (the message says why and what to do)."""
 
 
+SAFE_IN_C_STRING = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 _.,:;<>=+-*/()[]")
+
+
 def _c_string(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    """A C string literal of `text` (data from a description file, never code): every byte outside a plain
+    set is a three-digit octal escape, so no quote, backslash, newline or trigraph ("??/" is a backslash
+    under -std=c99) can end the literal early."""
+    return '"' + "".join(chr(b) if chr(b) in SAFE_IN_C_STRING else f"\\{b:03o}" for b in text.encode("utf-8")) + '"'
 
 
 def _twin(identifier: str):
@@ -378,7 +384,7 @@ def build_native_description_fmus(description: Path | str, designs: Sequence[str
     description = Path(description).resolve()
     desc = load(description)
     with tempfile.TemporaryDirectory(prefix="emcosim_native_") as tmp:
-        module = Path(tmp) / f"{description.stem.lower()}_model.py"
+        module = Path(tmp) / f"{desc.name.lower()}_model.py"    # a checked identifier, not the file's name
         module.write_text(codegen.module_source(desc, description.name))
         # the device identity of the pythonfmu twins (fmus.build.build_description): the digest of the file
         model = hashlib.sha256(description.read_bytes()).hexdigest()

@@ -1,0 +1,48 @@
+"""Text of a description file reaches the native FMUs' C sources only as string literals
+(fmus.native_build._c_string): compiled with -std=c99 (trigraphs on), each literal must give back exactly the
+bytes of the text, and none may end early and let the rest become C code."""
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from fmus.native_build import _c_string
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+
+HOSTILE = [
+    "> 0",
+    'x"); } __attribute__((constructor)) static void f(void) { system("touch pwned"); } static const char *y = ("',
+    "ends in a backslash \\",
+    "a trigraph ??/",
+    "??/\"; int z = 1; //",
+    "two\nlines\r\tand a tab",
+    "unicode: \u00e9 \u202e \u2028",
+    "*/ /* comment markers // too",
+    "%s %n printf formats",
+]
+
+
+def test_every_text_compiles_back_to_its_own_bytes(tmp_path: Path) -> None:
+    rows = ",\n".join(f"    {_c_string(text)}" for text in HOSTILE)
+    source = tmp_path / "strings.c"
+    source.write_text(
+        "#include <stdio.h>\n#include <string.h>\n"
+        f"static const char *const TEXTS[] = {{\n{rows}\n}};\n"
+        "int main(void) {\n"
+        "    size_t i;\n"
+        "    for (i = 0; i < sizeof TEXTS / sizeof TEXTS[0]; i++) {\n"
+        "        fwrite(TEXTS[i], 1, strlen(TEXTS[i]), stdout);\n"
+        "        fputc(0, stdout);\n"
+        "    }\n"
+        "    return 0;\n"
+        "}\n")
+    exe = tmp_path / "strings"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-o", str(exe), str(source)], check=True,
+                   capture_output=True)
+    out = subprocess.run([str(exe)], check=True, capture_output=True, cwd=tmp_path).stdout
+    assert out.split(b"\0")[:-1] == [t.encode("utf-8") for t in HOSTILE]
+    assert not (tmp_path / "pwned").exists()

@@ -9,7 +9,9 @@
 
 SCENARIO is a scenario name (a folder of scenarios/), a folder holding SystemStructure.ssd, an
 .ssd file or an .ssp archive. Errors are reported on one line; the exit status is then 1 (2 for
-a usage error, 128 + the signal's number for a run stopped by SIGINT (130) or SIGTERM (143)).
+a usage error, 128 + the signal's number for a run stopped by SIGINT (130) or SIGTERM (143)); certify
+exits 3 when it certifies no rate, 4 when a condition of the design's result fails. docs/cli.md has
+the one table of every status.
 Results are written safely: see emcosim.engine.results (a failed or interrupted run leaves
 NAME.partial.csv or NAME.partial/, never a half-written NAME.csv).
 """
@@ -552,7 +554,7 @@ def _radius(text: str) -> float:
 
 def cmd_certify(args) -> int:
     from .engine.outputs import check_destination, write_file
-    from .paper.certify import certify_scenario
+    from .paper.certify import certify_scenario, exit_status
 
     if args.json:
         check_destination(Path(args.json))        # before the certificate is computed: no link, a writable place
@@ -566,7 +568,10 @@ def cmd_certify(args) -> int:
         data = cert.to_json().encode("utf-8")
         write_file(Path(args.json), lambda f: f.write(data))   # beside, then renamed: never through a link
         print(f"certificate written to {args.json}")
-    return 0
+    status, why = exit_status(cert)
+    if status:
+        print(f"emcosim: {why} (exit status {status}, docs/cli.md)", file=sys.stderr)
+    return status
 
 
 def cmd_sweep(args) -> int:

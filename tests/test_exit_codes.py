@@ -73,6 +73,17 @@ def status_4(tmp_path, capsys) -> int:
     return status
 
 
+def status_5(tmp_path, capsys) -> int:
+    """A fixed-step run whose estimated coupling error exceeds the threshold (here set far below the estimate
+    of MEMS tracking at its 1 ms step); tests/test_fixed_error.py has the issue's device at a coarse step."""
+    out = tmp_path / "r.csv"
+    status = main(["run", "mems_tracking_Dd0", "--error-threshold", "1e-9", "-o", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("emcosim: warning: estimated coupling error") and not out.exists()
+    assert (tmp_path / "r.partial.csv").is_file()
+    return status
+
+
 def _signal(signum: int):
     def case(tmp_path, capsys, monkeypatch) -> int:
         def info_then_signal(args):
@@ -90,7 +101,7 @@ def _signal(signum: int):
     return case
 
 
-CASES = {0: status_0, 1: status_1, 2: status_2, 3: status_3, 4: status_4}
+CASES = {0: status_0, 1: status_1, 2: status_2, 3: status_3, 4: status_4, 5: status_5}
 SIGNALS = {130: signal.SIGINT, 143: signal.SIGTERM}
 
 

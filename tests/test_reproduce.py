@@ -142,7 +142,7 @@ def test_the_report_lists_the_decision_runs(decided, tmp_path):
     report.write_reports({r.name: r for r in runs.values()}, {role: r.name for role, r in runs.items()}, tmp_path, [])
     text = (tmp_path / "claims.md").read_text()
     assert "| mems_regulation_Dd0_to_0.1s | 0.1 | 0.02 | 0.0001 |" in text
-    assert "| maglev_tracking_D0_R0.82_to_400s | 400 | 40 | 0.02 |" in text
+    assert "| maglev_tracking_D0_R0.82_to_400s | 400 | 40 | 0.0125 |" in text        # the step since issue 35
     assert "| 1 | MEMS regulation, D_d = 0: the states converge to eta_d (Sec. 7.1, Fig. 1) | holds |" in text
     assert "mems_regulation_Dd0_to_0.1s, maglev_tracking_D0_R0.82_to_400s: decision runs" in text
 

@@ -36,6 +36,7 @@ class Result:
         self.step_control: Any = None          # stepcontrol.StepReport of an error-controlled run
         self.implicit: Any = None              # implicit.Statistics of an implicitly coupled run
         self.model_exchange: Any = None        # model_exchange.Statistics of a Model Exchange run
+        self.coupling_error: Any = None        # doubling.ErrorEstimate of a fixed-step Co-Simulation run
         if sink is not None:
             sink.start(self.columns)
 

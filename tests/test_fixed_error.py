@@ -127,3 +127,58 @@ def test_estimates_against_the_monolithic_reference_on_every_paper_scenario():
         ratios[name] = estimate.relative()["plant.q"] / true
     coupling = {n: r for n, r in ratios.items() if n not in NOT_COUPLING}
     assert len(coupling) == 8 and all(r >= 1 / 3 for r in coupling.values()), ratios
+
+
+def test_a_device_runs_plot_draws_the_set_point_beside_q_and_an_error_panel(device, tmp_path):
+    """Issue 35, item 5: `run --plot` of a device scenario (FMUs from `emcosim plant build`) draws q against its
+    set-point q* and the error q - q* (before: one panel per recorded variable), with no axis offset text and
+    no colour of low contrast on white."""
+    import matplotlib.pyplot as plt
+
+    from emcosim.cli import plot_run
+    from emcosim.engine import plotting
+
+    out = tmp_path / "r.csv"
+    assert main(["run", str(device), "--coupling", "implicit", "-o", str(out), "--no-progress"]) == 0
+    scenario = read_scenario(device)
+    from emcosim.engine.results import Result
+    from emcosim.paper.run_figure import run_figure
+
+    spec = run_figure(scenario, Result.from_csv(out))
+    assert spec is not None
+    labels = [[s.label for s in p.series] for p in spec.panels]
+    assert labels[0] == ["q", "q* (target)"] and labels[1] == ["q - q*"]
+    q_star = spec.panels[0].series[1].y
+    assert np.allclose(q_star, 30.0)                       # q_d = 30 um, drawn in um
+    png = plot_run(scenario, out, str(tmp_path / "r.png"), {})
+    assert png.stat().st_size > 1000
+    fig = plotting.draw(spec)
+    fig.canvas.draw()
+    try:
+        for ax in fig.axes:
+            assert ax.yaxis.get_offset_text().get_text() == ""
+            for line in ax.get_lines():
+                assert line.get_color().lower() not in ("#f0e442", "#56b4e9")
+    finally:
+        plt.close(fig)
+
+
+def test_the_generic_figure_has_no_offset_text_and_no_low_contrast_colour():
+    """A variable that swings by little about a large value (a bias flux) is labelled by its values, not by an
+    offset; the generic figure's lines avoid yellow and sky blue."""
+    import matplotlib.pyplot as plt
+
+    from emcosim.engine import plotting
+    from emcosim.engine.results import Result
+
+    result = Result([f"v{i}" for i in range(8)])
+    for k in range(50):
+        result.append(k * 0.01, [1.03 + 1e-6 * k] * 8)
+    fig = plotting.draw(plotting.variables_figure(result, {}))
+    fig.canvas.draw()
+    try:
+        assert all(ax.yaxis.get_offset_text().get_text() == "" for ax in fig.axes)
+        colours = {line.get_color().lower() for ax in fig.axes for line in ax.get_lines()}
+        assert not colours & {"#f0e442", "#56b4e9"}
+    finally:
+        plt.close(fig)

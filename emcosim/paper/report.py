@@ -32,8 +32,14 @@ NAMES = {"q": "position q", "p": "momentum p", "x_e": "electrical state x_e", "u
 
 
 def units(plant: str) -> dict[str, str]:
-    """Units of q, p, x_e (components' STATES), u (INPUT) and H of a plant."""
-    module = PLANTS[plant]
+    """Units of q, p, x_e (components' STATES), u (INPUT) and H of a plant; a described device's (its first
+    position, electrical state and input: components.catalog.DEVICES) for any other."""
+    module = PLANTS.get(plant)
+    if module is None:
+        from components import catalog
+
+        d = catalog.DEVICES[plant]
+        return {"q": d.q[0].unit, "p": d.p[0].unit, "x_e": d.x_e[0].unit, "u": d.u[0].unit, "H": "J"}
     return {**{k: v[0] for k, v in module.STATES.items()}, "u": module.INPUT[1], "H": "J"}
 
 

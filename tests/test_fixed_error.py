@@ -182,3 +182,34 @@ def test_the_generic_figure_has_no_offset_text_and_no_low_contrast_colour():
         assert not colours & {"#f0e442", "#56b4e9"}
     finally:
         plt.close(fig)
+
+
+def test_plant_scenario_without_a_step_chooses_one_the_run_accepts(device, tmp_path, capsys):
+    """Issue 35, item 3: `plant scenario` without --step-size takes the step from the loop's linearization at its
+    initial state and says how; for the issue's device the feedback adds a mode near 1e10 1/s, so it chooses
+    implicit coupling, and the run at that default is accepted by its own error estimate (exit 0)."""
+    out = tmp_path / "chosen"
+    capsys.readouterr()
+    assert main(["plant", "scenario", str(DEVICE), "--controller", "Proposition1", "--fmu-dir", str(device.parent / "fmus"),
+                 "--q0", "1e-5", "--stop-time", "1e-3", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "Default step" in said and "implicit coupling" in said
+    scenario = read_scenario(out)
+    assert scenario.coupling == "implicit" and 1e-7 <= scenario.step_size <= 1e-5
+    assert main(["run", str(out), "-o", str(tmp_path / "r.csv"), "--no-progress"]) == 0
+
+
+def test_the_default_step_respects_the_explicit_limit_of_a_known_stiff_loop():
+    """The paper's MEMS loop with D_d = -1 was stable explicitly only at steps of 4e-6 s or less
+    (emcosim/paper/scenarios.py): the linearization's step is at most that; round steps are round."""
+    from emcosim.devices.step_choice import default_step, round_down
+    from emcosim.paper.certify import design_from_scenario
+
+    assert [round_down(x) for x in (3.7e-6, 1e-3, 0.0249, 0.3, 7.9)] == [2.5e-6, 1e-3, 0.02, 0.25, 5.0]
+    scenario = read_scenario(ROOT / "scenarios" / "mems_regulation_Dd-1")
+    design = design_from_scenario(scenario)
+    values = {k: p.value for c in scenario.components if c.name == "plant" for k, p in c.parameters.items()}
+    eta_0 = np.array([values["q_0"], values["p_0"], values["x_e_0"]])
+    jet = design.reference.jet(0.0) if design.reference is not None else None     # Theorem 2: a constant reference
+    step, coupling, how = default_step(design.controller, eta_0, jet, scenario.stop_time)
+    assert coupling == "explicit" and step <= 4e-6 and "linearization" in how

@@ -144,7 +144,12 @@ class StepDoubling:
         stepper = self.stepper
         length = self.windows[n][0]
         saved = _coupling_state(stepper)
-        states = self.fmus.save(t)
+        try:
+            states = self.fmus.save(t)
+        except SimulationError as exc:            # an FMU that declares state saving but refuses it: no estimate
+            self.report.note = f"{exc}"
+            self.windows = {}
+            return
         try:
             try:
                 self._halves(n, length, t_at)
@@ -182,20 +187,22 @@ class StepDoubling:
 
 def windows(n_steps: int) -> dict[int, tuple[int, float]]:
     """The windows doubled: first step -> (its length in steps, the steps it stands for / its length). The
-    first window covers the initial transient (FIRST steps, or a twentieth of the run if shorter; a run of at
-    most SHORT steps is doubled whole: a Richardson estimate of its global error, at a cost of milliseconds) and stands
-    for itself; then one of LENGTH steps every EVERY steps, each standing for the steps from its start to the
-    next window's (the second one also for those between the first window and itself): every step is counted
-    once."""
-    first = n_steps if n_steps <= SHORT else max(1, min(FIRST, n_steps // 20))
+    first window covers the initial transient (FIRST steps, a twentieth of a run of more than EVERY steps if
+    shorter; a run of at most SHORT steps is doubled whole, a Richardson estimate of its global error at a cost
+    of milliseconds) and stands for itself; then one of LENGTH steps every EVERY steps (in a run of fewer, one in
+    its middle), each standing for the steps from its start to the next window's (the second one also for those
+    between the first window and itself): every step is counted once."""
+    if n_steps <= SHORT:
+        return {0: (n_steps, 1.0)}
+    first = max(1, min(FIRST, n_steps // 20)) if n_steps > EVERY else min(FIRST, n_steps // 2)
     starts = [0] + list(range(max(EVERY, first), n_steps - 1, EVERY))
+    if len(starts) == 1:
+        starts.append(max(first, min(n_steps // 2, n_steps - LENGTH)))
     out = {0: (first, 1.0)}
     for i, n in enumerate(starts[1:], start=1):
         length = min(LENGTH, n_steps - n)
         following = starts[i + 1] if i + 1 < len(starts) else n_steps
         out[n] = (length, (following - (first if i == 1 else n)) / length)
-    if len(starts) == 1 and first < n_steps:          # a short run: the first window stands for all of it
-        out[0] = (first, n_steps / first)
     return out
 
 

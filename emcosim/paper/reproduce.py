@@ -52,7 +52,7 @@ LABELS = {
 }
 
 
-DECISION_RUNS = {"mems_reg_0": 0.1, "maglev_1": 400.0}
+DECISION_RUNS = {"mems_reg_0": 0.1, "maglev_1": 400.0, "mems_track_0": 0.25, "mems_track_1": 0.25}
 """role -> stop time [s] of a longer run of its scenario (at its default step) for the claims that the
 scenario's horizon leaves open, judged with the same test (issue 26): "MEMS regulation, D_d = 0
 converges" (the error enters the 2 % band at 33.1 ms, after the 20 ms horizon) and "all four maglev
@@ -60,7 +60,9 @@ cases converge" (case 1, K_e < 0, decays at 0.018 1/s and enters the band at 216
 horizon; cases 2-4 settle within theirs, at 15.4, 12.75 and 4.52 s). Measured 2026-12-01: the
 monolithic closed loop gives 33.1 ms and 216.44 s (tests/test_reproduce.py); the runs take 0.5 s and
 6.3 s on this machine, beside a reproduce of 8.5 s on 2 cores. Every other claim is judged on the
-scenarios' horizons."""
+scenarios' horizons. Issue 35 added the two MEMS tracking runs to 0.25 s (1.2 periods of the reference
+sin 30t; the scenarios' 50 ms are a quarter period): Fig. 2 draws them, and the tracking claims' convergence
+is judged on them (it held on 50 ms and holds on 0.25 s)."""
 
 
 def decision_role(role: str) -> str:
@@ -327,7 +329,10 @@ def figure_specs(runs: dict[str, report.Run]) -> list[tuple[report.FigureSpec, s
                                            "MEMS regulation to q_d = 30 µm without and with coupled damping "
                                            "(Theorem 2, Fig. 1)", "q_d (eta_d)"), "fig1_mems_regulation"))
     if {"mems_track_0", "mems_track_1"} <= runs.keys():
-        specs.append((report.states_figure([runs["mems_track_0"], runs["mems_track_1"]],
+        # Fig. 2 over the tracking runs' 0.25 s (1.2 periods of sin 30t) where reproduce made them: the
+        # scenarios' 50 ms is a quarter period, where the tracking reads as a ramp (issue 35)
+        track = [runs.get(decision_role(role), runs[role]) for role in ("mems_track_0", "mems_track_1")]
+        specs.append((report.states_figure(track,
                                            "MEMS tracking of q*(t) = 0.05 m + 0.05 m sin(30 rad/s t) without and with "
                                            "coupled damping (Fig. 2)", "q* (eta*)"), "fig2_mems_tracking"))
     maglev = [runs[f"maglev_{i}"] for i in range(1, 5) if f"maglev_{i}" in runs]

@@ -280,6 +280,9 @@ def _fill_master(row: dict, best: dict, ref: Truth) -> None:
     row["per_step"] = {k: v / timing["steps"] for k, v in timing["per_fmu"].items()}
     row["per_step"]["master"] = (timing["total"] - timing["fmu"]) / timing["steps"]
     row["fmu_fixed"] = timing["fmu"]
+    estimate = r.coupling_error                   # the fixed run's own error estimate (engine/doubling.py)
+    true = float(np.max(np.abs(r["plant.q"] - ref.q(r.time))))
+    row["estimate"] = (estimate.seconds / timing["total"], estimate.absolute[estimate.columns.index("plant.q")] / true)
     (r, timing), row["t_tol"] = best["tol"]
     row["fmu_tol"] = timing["fmu"]
     row["e_tol"] = ref.position_error(r.time, r["plant.q"])
@@ -385,7 +388,7 @@ def main(argv=None) -> int:
 COLUMNS = ("scenario", "fair [s] (solver rtol, rhs, err, rec %)", "old [s] (rtol, err, post %, not solve %)",
            "fixed h [s]", "fixed x (err)", "tol 1e-3 x (err, steps)", "old x fixed/tol", "FMUs alone x fixed/tol",
            "ME x (err): tol 1e-3; best", "load [s]", "container x (err)", "libcosim x (err)",
-           "fixed: us per step plant/ctrl/ref/master")
+           "fixed: us per step plant/ctrl/ref/master", "fixed: estimate's cost %, estimate / true error of q")
 
 
 def _header(cols) -> None:
@@ -411,7 +414,8 @@ def _cells(row: dict) -> list[str]:
             h, ratio("fixed"), f"{row['t_tol'] / row['t_fair']:.2f} ({row['e_tol']:.1e}, {row['tol_report'].accepted})",
             f"{row['t_fixed'] / m:.2f}/{row['t_tol'] / m:.2f}",
             f"{row['fmu_fixed'] / row['t_fair']:.2f}/{row['fmu_tol'] / row['t_fair']:.2f}", me, f"{row['load']:.2f}",
-            ratio("container"), ratio("libcosim"), breakdown]
+            ratio("container"), ratio("libcosim"), breakdown,
+            f"{100 * row['estimate'][0]:.1f} %, {row['estimate'][1]:.2g}"]
 
 
 def _candidate(row: dict, method: str) -> str:

@@ -9,7 +9,9 @@
 
 SCENARIO is a scenario name (a folder of scenarios/), a folder holding SystemStructure.ssd, an
 .ssd file or an .ssp archive. Errors are reported on one line; the exit status is then 1 (2 for
-a usage error, 128 + the signal's number for a run stopped by SIGINT (130) or SIGTERM (143)).
+a usage error, 128 + the signal's number for a run stopped by SIGINT (130) or SIGTERM (143)); certify
+exits 3 when it certifies no rate, 4 when a condition of the design's result fails. docs/cli.md has
+the one table of every status.
 Results are written safely: see emcosim.engine.results (a failed or interrupted run leaves
 NAME.partial.csv or NAME.partial/, never a half-written NAME.csv).
 """
@@ -21,7 +23,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from .engine.errors import Interrupted, ScenarioError, SimulationError
+from .engine.errors import Interrupted, NotAccepted, ScenarioError, SimulationError
 
 # the command line's names of the engine's options (the engine's messages name them as its API does)
 FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "--tolerance", "max_step": "--max-step",
@@ -31,7 +33,9 @@ FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "-
          "solver_steps": "--solver-steps", "rtol": "--rtol", "max_runs": "--max-runs"}
 
 
-NUMBER_OPTIONS = ("--stop-time", "--step-size", "--tolerance", "--max-step", "--radius", "--rtol")
+NOT_ACCEPTED = 5              # exit status of a run whose estimated coupling error is above --error-threshold
+
+NUMBER_OPTIONS = ("--error-threshold", "--stop-time", "--step-size", "--tolerance", "--max-step", "--radius", "--rtol")
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
@@ -67,6 +71,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"emcosim: interrupted by {name} (the command finished before it could stop)", file=sys.stderr)
             return 128 + signum
         return status
+    except NotAccepted as exc:                     # a complete run whose estimated error is too large
+        print(f"emcosim: warning: {error_line(exc)} (exit status {NOT_ACCEPTED}, docs/cli.md)", file=sys.stderr)
+        return NOT_ACCEPTED
     except Interrupted as exc:                     # stopped between two communication points
         print(f"emcosim: error: {error_line(exc)}", file=sys.stderr)
         return 128 + exc.signal
@@ -145,6 +152,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="scipy's integrator of a ModelExchange run (default LSODA)")
     run.add_argument("--solver-steps", action="store_true",
                      help="a ModelExchange run records a row at every step of the solver instead of every --step-size")
+    run.add_argument("--error-threshold", type=float, default=None, metavar="E",
+                     help="a fixed-step co-simulation estimates its coupling error by step doubling on a sample of "
+                          "its steps; above E [1] of a recorded variable's range (default 1e-2) the run warns, "
+                          "keeps its rows as NAME.partial.csv and exits with status 5 (docs/cli.md)")
     run.add_argument("--no-progress", action="store_true", help="never show the progress bar")
     run.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
     run.add_argument("--max-steps", type=float, default=None, metavar="N",
@@ -292,6 +303,7 @@ def cmd_run(args) -> int:
     from .progress import ProgressBar
 
     options = run_options(args)                   # every setting checked before anything is read
+    threshold = _error_threshold(args.error_threshold)
     scenario = _read(args.scenario, args.fmu_dir, args)
     start_values = {}
     for item in args.set:
@@ -311,6 +323,13 @@ def cmd_run(args) -> int:
     try:
         with sink:
             result = run(scenario, options, start_values=start_values, record=record, progress=bar, sink=sink)
+            estimate = getattr(result, "coupling_error", None)
+            if estimate is not None:
+                sink.comment = f"emcosim: {estimate.summary()}"
+                if not estimate.accepted(threshold):
+                    raise NotAccepted(f"{estimate.summary()}: above the accepted {threshold:g} of its range "
+                                      "(--error-threshold); a shorter --step-size, --coupling implicit or "
+                                      "--tolerance gives a result that keeps it", result)
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
@@ -332,7 +351,22 @@ def cmd_run(args) -> int:
         print(f"{scenario.name}: {result.implicit.summary()}")
     if getattr(result, "model_exchange", None) is not None:
         print(f"{scenario.name}: {result.model_exchange.summary()}")
+    if getattr(result, "coupling_error", None) is not None:
+        print(f"{scenario.name}: {result.coupling_error.summary()}")
     return 0
+
+
+def _error_threshold(value: float | None) -> float:
+    """--error-threshold: a finite number > 0 (default doubling.THRESHOLD)."""
+    import math
+
+    from .engine.doubling import THRESHOLD
+
+    if value is None:
+        return THRESHOLD
+    if not (math.isfinite(value) and value > 0):
+        raise ScenarioError(f"--error-threshold {value:g}: must be a positive number")
+    return value
 
 
 def _raise_failure(failure: SimulationError, sink, scenario, plot: str | None, start_values: dict) -> None:
@@ -519,6 +553,7 @@ def _radius(text: str) -> float:
 def cmd_certify(args) -> int:
     from .api import certify
     from .engine.outputs import check_destination, write_file
+    from .paper.certify import exit_status
 
     if args.json:
         check_destination(Path(args.json))        # before the certificate is computed: no link, a writable place
@@ -532,7 +567,10 @@ def cmd_certify(args) -> int:
         data = cert.to_json().encode("utf-8")
         write_file(Path(args.json), lambda f: f.write(data))   # beside, then renamed: never through a link
         print(f"certificate written to {args.json}")
-    return 0
+    status, why = exit_status(cert)
+    if status:
+        print(f"emcosim: {why} (exit status {status}, docs/cli.md)", file=sys.stderr)
+    return status
 
 
 def cmd_sweep(args) -> int:

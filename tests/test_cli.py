@@ -91,8 +91,10 @@ def test_coupling_is_the_scenarios_unless_chosen(fmu_dir, tmp_path, capsys):
             "--output", str(tmp_path / "r.csv"), "--no-progress"]
     assert main(args) == 0
     assert "implicit coupling: " in capsys.readouterr().out
-    assert main(args + ["--coupling", "explicit"]) == 0
-    assert "implicit coupling" not in capsys.readouterr().out
+    # explicitly, the implicit scenario's step is unstable (docs/scenarios.md): the run's estimate says so (exit 5)
+    assert main(args + ["--coupling", "explicit"]) == 5
+    captured = capsys.readouterr()
+    assert "implicit coupling" not in captured.out and "estimated coupling error" in captured.err
     assert main(args + ["--coupling", "implicit", "--coupling-order", "2"]) == 1
     assert "--coupling-order 2" in one_line_error(capsys)
 

@@ -202,7 +202,7 @@ def test_pack_on_the_command_line_writes_the_model_exchange_archive(fmu_dir, tmp
     assert rc == 0 and "Model Exchange" in text, text
     attrs = _solver(_ssd(out))
     assert float(attrs["relativeTolerance"]) == 1e-8 and float(attrs["absoluteTolerance"]) == 1e-8
-    assert float(attrs["maximumStepSize"]) == 0.04                  # the scenario's step
+    assert float(attrs["maximumStepSize"]) == 0.02                  # the scenario's step
     folder = read_scenario(ROOT / "scenarios" / "maglev_regulation_prop2", fmu_dir=fmu_dir)
     a = simulate(read_scenario(out), stop_time=1.0, interface_type="ModelExchange")
     b = simulate(folder, stop_time=1.0, interface_type="ModelExchange")

@@ -69,8 +69,10 @@ def test_sweep_equals_runs_one_by_one(local_table, fmu_dir, tmp_path):
     for row in local_table:
         value = row["controller.D_d"]
         csv = tmp_path / f"run_{value}.csv"
+        # --error-threshold: at D_d = -1 explicit coupling at 4 us is near its limit (the run's estimate says
+        # so, exit 5); the sweep's numbers are compared here, not their accuracy
         assert cli.main(["run", SCENARIO, "--stop-time", STOP, "--step-size", STEP, "--fmu-dir", str(fmu_dir), "--no-progress",
-                         "--set", f"controller.D_d={value!r}", "--output", str(csv)]) == 0
+                         "--set", f"controller.D_d={value!r}", "--output", str(csv), "--error-threshold", "1e9"]) == 0
         expected = metrics_of(scenario, {"controller.D_d": value}, result_of_csv(csv))
         for m in METRICS + ["initial_error"]:
             assert row[m] == expected[m], (value, m)          # bit for bit: same master, same FMUs

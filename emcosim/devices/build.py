@@ -135,7 +135,7 @@ def build_native_fmus_of(description: str | Path, out: Path,
     return paths
 
 
-def scenario_of(description: str | Path, out: str | Path, controller: str, stop_time: float, step_size: float, *,
+def scenario_of(description: str | Path, out: str | Path, controller: str, stop_time: float, step_size: float | None, *,
                 fmu_dir: str | Path | None = None, q_d: Sequence[float] | None = None, references: Sequence = (),
                 q0: Sequence[float] | None = None, p0: Sequence[float] | None = None,
                 x_e0: Sequence[float] | None = None, gains: Mapping[str, float] | None = None,

@@ -2,7 +2,7 @@
 
     emcosim plant check FILE [--q-d Q ...] [--reference SPEC ...] [--json OUT]
     emcosim plant build FILE --out DIR [--native]
-    emcosim plant scenario FILE --controller DESIGN --out DIR --stop-time T --step-size H [...]
+    emcosim plant scenario FILE --controller DESIGN --out DIR --stop-time T [--step-size H] [...]
 
 check: which of Assumptions 1-4 hold, each with its test, and which designs apply (components.plant_check).
 build: the plant FMU <name>.fmu, one controller FMU <name>_<design>.fmu per design that applies and the
@@ -65,7 +65,9 @@ def add_parser(sub) -> None:
     scen.add_argument("--fmu-dir", help="the folder `emcosim plant build` wrote (default: build/<name> of the "
                                         "current folder); the .ssd names it relative to the scenario folder")
     scen.add_argument("--stop-time", type=float, required=True, help="stop time [s]")
-    scen.add_argument("--step-size", type=float, required=True, help="communication step [s]")
+    scen.add_argument("--step-size", type=float, help="communication step [s] (default: chosen from the closed loop's "
+                      "linearization at its initial state, and explicit or implicit coupling with it: the scenario's "
+                      "notes and this command say how; emcosim/devices/step_choice.py)")
     scen.add_argument("--q-d", type=float, nargs="+", metavar="Q", help="set-point positions (regulation)")
     scen.add_argument("--reference", action="append", default=[], metavar="KIND:NAME=VALUE,...",
                       help="reference of each position (tracking; repeat per position)")
@@ -156,7 +158,17 @@ def cmd_scenario(args) -> int:
     except ValueError as exc:
         raise _describe(exc) from None
     print(f"scenario    {out} ({', '.join(sorted(files))}); run it with `emcosim run {out}`")
+    if args.step_size is None:
+        print(f"step        {_chosen_step(files['SystemStructure.ssd'])}")
     if missing:
         print(f"emcosim: note: {', '.join(missing)} not in {fmu_dir} yet: "
               f"`emcosim plant build {args.file} --out {fmu_dir}`", file=sys.stderr)
     return 0
+
+
+def _chosen_step(ssd: str) -> str:
+    """The sentence of the .ssd's notes that says how its default step was chosen (step_choice.py)."""
+    import re
+
+    found = re.search(r"Default step .*?(?=\.\s*(?:-->|\n|$))", ssd, flags=re.S)
+    return " ".join(found.group(0).split()) if found else "chosen from the loop's linearization"

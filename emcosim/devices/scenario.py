@@ -10,6 +10,7 @@ state is given whole. The files are the same kind as the paper's scenarios/ fold
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ class Setup:
 
     design: str
     stop_time: float
-    step_size: float
+    step_size: float | None                        # None: chosen from the loop at its initial state (step_choice.py)
     gains: dict[str, float] = field(default_factory=dict)
     references: list[dict] = field(default_factory=list)
     q_0: Sequence[float] | None = None
@@ -169,6 +170,13 @@ def scenario_files(device: Device, setup: Setup, fmu_dir: str) -> dict[str, str]
     design = device.designs[setup.design]
     identifier = device.controller_identifier(setup.design)
     eta_0 = initial_state(device, setup, controller)
+    chosen = None
+    if setup.step_size is None:                   # the step of the loop at its initial state (step_choice.py)
+        from .step_choice import default_step
+
+        step, coupling, how = default_step(controller, eta_0, stacked_jet(references, 0.0) if references else None,
+                                           setup.stop_time)
+        setup, chosen = dataclasses.replace(setup, step_size=step), (coupling, how)
     name = setup.name or f"{device.name.lower()}_{setup.design.lower()}"
     files = _parameter_sets(device, setup, gains, eta_0)
 
@@ -203,10 +211,12 @@ def scenario_files(device: Device, setup: Setup, fmu_dir: str) -> dict[str, str]
     description = f"{device.name} {what} with {setup.design}"
     notes = [f"{name}: {description}.",
              f"Initial state ({', '.join(states)}) = {[float(x) for x in eta_0]}" + setup.start_text(),
-             f"Communication step {setup.step_size:g} s, stop time {setup.stop_time:g} s.",
+             f"Communication step {setup.step_size:g} s, stop time {setup.stop_time:g} s."
+             + (f" {chosen[1]}." if chosen else ""),
              "Written by `emcosim plant scenario` from the device's description."]
     scenario = Scenario(name, Path("SystemStructure.ssd"), components, connections, 0.0, setup.stop_time,
-                        setup.step_size, description, notes)
+                        setup.step_size, description, notes,
+                        coupling="implicit" if chosen and chosen[0] == "implicit" else None)
     files["SystemStructure.ssd"] = system_structure_xml(scenario, {c.name: str(c.source) for c in components},
                                                         setup.step_size, tolerance=PLANT_RTOL)
     return files
@@ -218,7 +228,7 @@ def _design(device: Device, setup: Setup) -> tuple:
         raise ValueError(f"{device.name}: no design {setup.design!r}; the designs that apply: {sorted(device.designs)}")
     if not (math.isfinite(setup.stop_time) and setup.stop_time > 0):
         raise ValueError(f"stop time {setup.stop_time} must be finite and > 0")
-    if not (math.isfinite(setup.step_size) and 0 < setup.step_size <= setup.stop_time):
+    if setup.step_size is not None and not (math.isfinite(setup.step_size) and 0 < setup.step_size <= setup.stop_time):
         raise ValueError(f"step size {setup.step_size} must be finite, > 0 and at most the stop time")
     design = device.designs[setup.design]
     identifier = device.controller_identifier(setup.design)

@@ -51,6 +51,11 @@ class SimulationError(ScenarioError):
         self.result = result
 
 
+class NotAccepted(SimulationError):
+    """The run completed, but its estimated error exceeds what the caller accepts (doubling.py): the rows are
+    kept as a partial result. The command line warns and exits with status 5 (docs/cli.md)."""
+
+
 class Interrupted(SimulationError):
     """The run was stopped by a signal (SIGINT: Ctrl-C, SIGTERM: kill); `signal` is its number.
     The command line exits with 128 + signal, as a shell does for a process killed by it."""

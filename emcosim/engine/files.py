@@ -119,12 +119,12 @@ def rename_noreplace(src: Path, dst: Path) -> bool:
     return True
 
 
-def copy(src: int, dst: int, offset: int, length: int) -> None:
-    """Copy `length` bytes of file `src` from `offset` to the start of file `dst`."""
+def copy(src: int, dst: int, offset: int, length: int, at: int = 0) -> None:
+    """Copy `length` bytes of file `src` from `offset` to file `dst` at `at` (default: its start)."""
     done = 0
     try:
         while done < length:
-            n = os.copy_file_range(src, dst, length - done, offset + done, done)
+            n = os.copy_file_range(src, dst, length - done, offset + done, at + done)
             if n == 0:
                 break
             done += n
@@ -137,7 +137,7 @@ def copy(src: int, dst: int, offset: int, length: int) -> None:
             break
         view = memoryview(data)
         while view:
-            n = os.pwrite(dst, view, done)
+            n = os.pwrite(dst, view, at + done)
             view = view[n:]
             done += n
     if done < length:

@@ -172,6 +172,22 @@ class Implicit:
         self.history = History()                # t -> (values, derivatives) of the points before
         self.statistics = Statistics()
 
+    def save(self) -> dict:
+        """What the iteration learns from step to step (Jacobians, scales, mode, histories, statistics): a
+        caller that steps aside from the run (doubling.py) and rolls the FMUs back restores it with `restore`."""
+        return {"scale": list(self.scale), "jacobian": self.jacobian, "jacobian_step": self.jacobian_step,
+                "kept": dict(self.kept), "mode": self.mode, "derivative_slots": list(self.derivative_slots),
+                "sets": list(self.sets), "points": list(self.history.points),
+                "statistics": dict(vars(self.statistics))}
+
+    def restore(self, saved: dict) -> None:
+        """Back to what `save` returned (the Jacobians are never changed in place, only replaced)."""
+        self.scale, self.jacobian, self.jacobian_step = saved["scale"], saved["jacobian"], saved["jacobian_step"]
+        self.kept, self.mode, self.derivative_slots = saved["kept"], saved["mode"], saved["derivative_slots"]
+        self.sets = saved["sets"]
+        vars(self.statistics).update(saved["statistics"])     # in place: the run's result holds this object
+        self.history.points[:] = saved["points"]
+
     @property
     def degree(self) -> int:
         """Degree of the inputs' polynomials: the coupling's global order is one more."""

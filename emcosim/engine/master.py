@@ -34,6 +34,7 @@ from typing import Callable, Sequence
 from . import binding, coupling
 from . import implicit as implicit_
 from . import instances as instances_
+from .doubling import StepDoubling
 from .errors import ScenarioError, SimulationError
 from .fmi import FMICallException
 from .fmustate import States
@@ -430,23 +431,37 @@ def _initialize(scenario: Scenario, instances: dict[str, Instance], parameters, 
 
 
 def _run_fixed(stepper: Stepper, result: Result, planned: Experiment, progress) -> None:
-    """Steps of the fixed size h: t_n = t0 + n h (never accumulated), the last one ending at t_stop."""
+    """Steps of the fixed size h: t_n = t0 + n h (never accumulated), the last one ending at t_stop. A sample
+    of the steps is doubled to estimate the run's coupling error (doubling.py): `result.coupling_error`."""
     t0, t_stop, h = planned.start_time, planned.stop_time, planned.step_size
     n_steps = max(1, math.ceil((t_stop - t0) / h - 1e-9))
     every = max(1, n_steps // 200)
+    order = (stepper.implicit.degree if stepper.implicit is not None
+             else _degree(result.coupling_orders, stepper.plan.dynamic)) + 1
+    doubling = StepDoubling(stepper, result.columns, order, n_steps)
+    result.coupling_error = doubling.report
+
+    def t_at(m: int) -> float:
+        return t_stop if m == n_steps else t0 + m * h
     try:
         for n in range(n_steps):
             t = t0 + n * h
             stepper.t = t
             stepper.resolve()
-            result.append(t, stepper.row())
-            t_next = t_stop if n == n_steps - 1 else t0 + (n + 1) * h
+            row = stepper.row()
+            result.append(t, row)
+            doubling.observe(n, row)
+            t_next = t_at(n + 1)
+            if doubling.sampled(n):
+                doubling.double(n, t, t_at)
             stepper.step(t, t_next - t)
             if progress is not None and n % every == 0:
                 progress((n + 1) / n_steps)
         stepper.t = t_stop
         stepper.resolve()
-        result.append(t_stop, stepper.row())
+        row = stepper.row()
+        result.append(t_stop, row)
+        doubling.observe(n_steps, row)
     except SimulationError as exc:
         exc.result = result
         raise

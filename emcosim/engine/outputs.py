@@ -160,6 +160,7 @@ class ResultFile:
         self.last_time: float | None = None     # time of the last row on disk
         self.last_flush = time.monotonic()
         self.final: Path | None = None
+        self.comment: str | None = None         # a first comment line of the complete file (e.g. its error estimate)
 
     # the sink protocol of Result
     def start(self, columns: list[str], notes: Sequence[str] = ()) -> None:
@@ -220,7 +221,9 @@ class ResultFile:
         except OSError as exc:
             raise SimulationError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         try:
-            copy(self.fd, out, MARK_BYTES, self.written - MARK_BYTES)
+            head = f"# {one_line(self.comment)}\n".encode() if self.comment is not None else b""
+            os.pwrite(out, head, 0)
+            copy(self.fd, out, MARK_BYTES, self.written - MARK_BYTES, at=len(head))
             os.fsync(out)
             os.replace(temp, self.path)
         except OSError as exc:

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 
 OKABE_ITO = ["#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442", "#000000"]
+# the palette without its colours of low contrast on white (sky blue 1.9:1, yellow 1.2:1): for lines drawn alone
+CONTRAST = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#000000"]
 LINE_STYLES = ["-", "--", "-.", ":"]
 
 PREFIXES = {-12: "p", -9: "n", -6: "µ", -3: "m", 0: "", 3: "k", 6: "M", 9: "G"}
@@ -99,6 +101,8 @@ def draw(spec: FigureSpec):
         for s in panel.series:
             ax.plot(s.x, s.y, linestyle=s.style, color=s.color, lw=s.width, label=s.label, zorder=s.zorder)
         ax.set_yscale(panel.yscale)
+        if panel.yscale == "linear":             # no "+1.03" offset text above the axis: the ticks say the values
+            ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_ylabel(panel.ylabel)
         if panel.title:
             ax.set_title(panel.title, fontsize=10)
@@ -170,6 +174,6 @@ def variables_figure(result, info: dict[str, VariableInfo], title: str = "",
         y = result[name]
         meta = info.get(name, VariableInfo())
         factor, unit = scale_unit(y, meta.unit)
-        panels.append(Panel(label(name, unit), [Series(name, t * t_factor, y * factor, OKABE_ITO[i % len(OKABE_ITO)])],
+        panels.append(Panel(label(name, unit), [Series(name, t * t_factor, y * factor, CONTRAST[i % len(CONTRAST)])],
                             title=meta.description))
     return FigureSpec(title, panels, label("time t", t_unit), legend="none")

@@ -40,6 +40,7 @@ class Result:
         self.implicit: Any = None              # implicit.Statistics of an implicitly coupled run
         self.model_exchange: Any = None        # model_exchange.Statistics of a Model Exchange run
         self.units: dict[str, str] = {}        # unit of each column ('' for none), where the caller knows them
+        self.coupling_error: Any = None        # doubling.ErrorEstimate of a fixed-step Co-Simulation run
         if sink is not None:
             sink.start(self.columns, self.notes)
 

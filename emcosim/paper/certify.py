@@ -103,6 +103,41 @@ def certify_scenario(path: str | Path, radius: float = 0.1, include_start: bool 
     return cert
 
 
+# ---- what `emcosim certify`'s exit status tells (docs/cli.md) ------------------------------------
+
+CERTIFIED = 0               # a rate is certified and every condition the design's result requires holds
+NO_RATE = 3                 # no contraction rate certified (no constant metric exists, or none was found)
+CONDITION_FAILS = 4         # a condition the design's result requires fails (takes precedence over NO_RATE)
+
+
+def failed_conditions(cert: certificates.Certificate) -> list[str]:
+    """The conditions of the design's own result (Proposition 1, 2 or Theorem 2, 3) that fail: the assumption
+    it rests on, the pH condition where that result requires it (Propositions 1, 2; the check's note says
+    "required"), and Theorem 1 (i) (F_d Hurwitz) and (ii) (hess H_d > 0 over the neighbourhood). Theorem 1
+    (iii) is left out: it is only Theorem 1's sufficient condition for its own rate (eq. riccati), which
+    fails on every paper design (docs/certificates.md); the rate is then Lemma 1's, whose failure is
+    NO_RATE."""
+    failed = []
+    for c in cert.checks:
+        if c.verdict != certificates.FAILS:
+            continue
+        required = (c.name.startswith(("Assumption", "Theorem 1 (i)", "Theorem 1 (ii)"))
+                    or (c.name.startswith("pH condition") and c.note == "required"))
+        if required:
+            failed.append(c.name)
+    return failed
+
+
+def exit_status(cert: certificates.Certificate) -> tuple[int, str]:
+    """certify's exit status and the line that says why (empty for CERTIFIED)."""
+    failed = failed_conditions(cert)
+    if failed:
+        return CONDITION_FAILS, f"a condition of the design's result fails: {', '.join(failed)}"
+    if cert.rate is None:
+        return NO_RATE, "no contraction rate is certified over this neighbourhood"
+    return CERTIFIED, ""
+
+
 # ---- certify's output for every scenario, in docs/certificates.md --------------------------------
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -26,14 +26,22 @@ N_WINDOWS = 16                   # envelope windows over the horizon for the dec
 FLOOR = 1e-3                     # envelope windows below FLOOR x the first are left out of the fit
 OSCILLATING = 2                  # sign changes of e outside the band that make an oscillation
 DECISION = "_decision"           # role + DECISION: a longer run of the role's scenario that decides its convergence
+RESOLVED = 0.05                  # a metric that changes by more than this (relative) at half the recording resolution
+                                 # is not resolved by the run's samples (a count: by more than 1 as well)
 
 PLANTS = {"MEMS": mems, "Maglev": maglev}
 NAMES = {"q": "position q", "p": "momentum p", "x_e": "electrical state x_e", "u": "input u", "H": "stored energy H"}
 
 
 def units(plant: str) -> dict[str, str]:
-    """Units of q, p, x_e (components' STATES), u (INPUT) and H of a plant."""
-    module = PLANTS[plant]
+    """Units of q, p, x_e (components' STATES), u (INPUT) and H of a plant; a described device's (its first
+    position, electrical state and input: components.catalog.DEVICES) for any other."""
+    module = PLANTS.get(plant)
+    if module is None:
+        from components import catalog
+
+        d = catalog.DEVICES[plant]
+        return {"q": d.q[0].unit, "p": d.p[0].unit, "x_e": d.x_e[0].unit, "u": d.u[0].unit, "H": "J"}
     return {**{k: v[0] for k, v in module.STATES.items()}, "u": module.INPUT[1], "H": "J"}
 
 
@@ -91,6 +99,8 @@ class Metrics:
     final_error: float             # m, e at the last sample
     max_abs_u: float               # V
     initial_error: float           # m
+    resolution: float = math.nan   # s: the recording step the metrics are computed from (the largest spacing)
+    unresolved: dict = field(default_factory=dict)   # metric -> why its value is not resolved (see `resolution_check`)
 
 
 def band_of(e: np.ndarray) -> float:
@@ -100,8 +110,29 @@ def band_of(e: np.ndarray) -> float:
 def run_metrics(run: Run) -> Metrics:
     e = run.e
     band = band_of(e)
-    return Metrics(metrics.settling_time(run.t, e, band), 100.0 * metrics.overshoot(e), metrics.oscillations(e, band),
-                   metrics.ise(run.t, e), float(e[-1]), float(np.max(np.abs(run.u))), float(e[0]))
+    m = Metrics(metrics.settling_time(run.t, e, band), 100.0 * metrics.overshoot(e), metrics.oscillations(e, band),
+                metrics.ise(run.t, e), float(e[-1]), float(np.max(np.abs(run.u))), float(e[0]))
+    m.resolution = float(np.max(np.diff(run.t))) if len(run.t) > 1 else math.nan
+    m.unresolved = resolution_check(run.t, e, band)
+    return m
+
+
+def resolution_check(t: np.ndarray, e: np.ndarray, band: float) -> dict[str, str]:
+    """The overshoot and the oscillation count computed again from every other sample (half the recording
+    resolution, the same band): where one changes by more than RESOLVED (a count: and by more than 1), the
+    samples do not resolve what it measures (e.g. a 2.2 kHz oscillation recorded every 1 ms): metric -> why."""
+    out = {}
+    h = float(np.max(np.diff(t))) if len(t) > 1 else math.nan
+    half = e[::2]
+    over, over_half = 100.0 * metrics.overshoot(e), 100.0 * metrics.overshoot(half)
+    if abs(over - over_half) > RESOLVED * max(over, over_half, 100 * BAND):
+        out["overshoot"] = (f"overshoot {over:.3g} % from samples every {h:.3g} s, {over_half:.3g} % from every "
+                            "other sample: the recording does not resolve it")
+    n, n_half = metrics.oscillations(e, band), metrics.oscillations(half, band)
+    if abs(n - n_half) > max(1.0, RESOLVED * max(n, n_half)):
+        out["oscillations"] = (f"{n} sign changes from samples every {h:.3g} s, {n_half} from every other sample: "
+                               "the recording does not resolve the oscillation")
+    return out
 
 
 def finite_or_none(x):
@@ -124,13 +155,14 @@ def metrics_table(runs: dict[str, Run]) -> tuple[str, dict]:
     for name, r in runs.items():
         data[name] = {**asdict(run_metrics(r)), "horizon_s": float(r.t[-1])}
     head = ("| case | horizon [s] | time into 2 % band [s] | overshoot [%] | oscillations | ISE [m^2 s] "
-            "| final error [m] | max abs u [V] | note |\n|---|---|---|---|---|---|---|---|---|")
+            "| final error [m] | max abs u [V] | recorded every [s] | note |\n|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for n, m in data.items():
         settle = f"{m['settling_time_2pct']:.4g}" if math.isfinite(m["settling_time_2pct"]) else "not reached"
-        note = "; ".join(runs[n].notes) + ("; run shortened" if runs[n].shortened else "")
+        note = "; ".join([*runs[n].notes, *m["unresolved"].values()]) + ("; run shortened" if runs[n].shortened else "")
         rows.append(f"| {n} | {m['horizon_s']:.4g} | {settle} | {m['overshoot']:.3g} | {m['oscillations']} | "
-                    f"{m['ise']:.3g} | {m['final_error']:.3g} | {m['max_abs_u']:.4g} | {note.strip('; ')} |")
+                    f"{m['ise']:.3g} | {m['final_error']:.3g} | {m['max_abs_u']:.4g} | {m['resolution']:.3g} | "
+                    f"{note.strip('; ')} |")
     return "\n".join([head, *rows]), finite_or_none(data)
 
 
@@ -266,7 +298,14 @@ def _scenario_verdict(judged: Run, own: Run, prefix: str = "") -> dict:
     return {f"{prefix}verdict over the scenario's {own.t[-1]:g} s horizon": f"{v} ({why})"}
 
 
+def _unresolved(m: Metrics, *names: str) -> str:
+    """Why the metrics `names` cannot decide a claim (empty if they can)."""
+    return "; ".join(m.unresolved[n] for n in names if n in m.unresolved)
+
+
 def _oscillates(run: Run, m: Metrics) -> tuple[str, str]:
+    if _unresolved(m, "oscillations"):
+        return UNDECIDED, _unresolved(m, "oscillations")
     if m.oscillations >= OSCILLATING:
         return HOLDS, f"{m.oscillations} sign changes of e outside the 2 % band"
     if run.shortened:
@@ -275,6 +314,8 @@ def _oscillates(run: Run, m: Metrics) -> tuple[str, str]:
 
 
 def _no_oscillation(run: Run, m: Metrics) -> tuple[str, str]:
+    if _unresolved(m, "oscillations", "overshoot"):
+        return UNDECIDED, _unresolved(m, "oscillations", "overshoot")
     if m.oscillations > 0 or m.overshoot >= 100 * BAND:
         return FAILS, f"{m.oscillations} sign change(s), overshoot {m.overshoot:.3g} %"
     if run.shortened:
@@ -284,7 +325,10 @@ def _no_oscillation(run: Run, m: Metrics) -> tuple[str, str]:
 
 def _fewer(a: Metrics, b: Metrics) -> str:
     """Does run a oscillate less than run b? Counts over a horizon are lower bounds for a run that
-    has not settled: a < b is decided if a settled; a >= b is decided if b settled."""
+    has not settled: a < b is decided if a settled; a >= b is decided if b settled. Counts the recording does
+    not resolve decide nothing."""
+    if _unresolved(a, "oscillations") or _unresolved(b, "oscillations"):
+        return UNDECIDED
     if a.oscillations < b.oscillations:
         return HOLDS if math.isfinite(a.settling_time_2pct) else UNDECIDED
     return FAILS if math.isfinite(b.settling_time_2pct) else UNDECIDED

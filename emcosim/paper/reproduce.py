@@ -50,7 +50,7 @@ LABELS = {
 }
 
 
-DECISION_RUNS = {"mems_reg_0": 0.1, "maglev_1": 400.0}
+DECISION_RUNS = {"mems_reg_0": 0.1, "maglev_1": 400.0, "mems_track_0": 0.25, "mems_track_1": 0.25}
 """role -> stop time [s] of a longer run of its scenario (at its default step) for the claims that the
 scenario's horizon leaves open, judged with the same test (issue 26): "MEMS regulation, D_d = 0
 converges" (the error enters the 2 % band at 33.1 ms, after the 20 ms horizon) and "all four maglev
@@ -58,7 +58,9 @@ cases converge" (case 1, K_e < 0, decays at 0.018 1/s and enters the band at 216
 horizon; cases 2-4 settle within theirs, at 15.4, 12.75 and 4.52 s). Measured 2026-12-01: the
 monolithic closed loop gives 33.1 ms and 216.44 s (tests/test_reproduce.py); the runs take 0.5 s and
 6.3 s on this machine, beside a reproduce of 8.5 s on 2 cores. Every other claim is judged on the
-scenarios' horizons."""
+scenarios' horizons. Issue 35 added the two MEMS tracking runs to 0.25 s (1.2 periods of the reference
+sin 30t; the scenarios' 50 ms are a quarter period): Fig. 2 draws them, and the tracking claims' convergence
+is judged on them (it held on 50 ms and holds on 0.25 s)."""
 
 
 def decision_role(role: str) -> str:
@@ -104,12 +106,35 @@ def run_from_result(name: str, label: str, scenario, result) -> report.Run:
                       horizon=float(scenario.stop_time) if scenario.stop_time is not None else float("nan"), H=H)
 
 
+POINTS_PER_PERIOD = 20          # the metrics' signal samples the loop's fastest oscillation at least this often
+
+
+def resolving_step(scenario) -> float:
+    """The step of a paper run: the scenario's, or a shorter round one whose samples resolve the loop's fastest
+    oscillation, POINTS_PER_PERIOD per period (its metrics count sign changes and peaks: at the MEMS switch's
+    default steps, 0.1 and 1 ms, its 2.2 kHz oscillation aliases: 10 sign changes counted over 50 ms against
+    106). The oscillation: the largest |Im lambda| among the closed loop's eigenvalues at the initial state and
+    at the target with |Im lambda| > |Re lambda| (a mode damped faster is gone within a period); the eigenvalues
+    from the linearization of the control law (emcosim.devices.step_choice.modes)."""
+    from ..devices.step_choice import modes, round_down
+
+    d = design_from_scenario(scenario)
+    jet = d.reference.jet(0.0) if d.reference is not None else None
+    states = [d.controller.target(jet)] + ([d.eta0] if d.eta0 is not None else [])
+    eigenvalues = np.concatenate([modes(d.controller, eta, jet)[0] for eta in states])
+    oscillating = eigenvalues[np.abs(eigenvalues.imag) > np.abs(eigenvalues.real)]
+    if oscillating.size == 0:
+        return float(scenario.step_size)
+    period = 2 * np.pi / float(np.max(np.abs(oscillating.imag)))
+    return min(float(scenario.step_size), round_down(period / POINTS_PER_PERIOD))
+
+
 def _simulate_case(name: str, stop_time: float | None, fmu_dir: str | Path | None,
                    progress=None) -> tuple[list[str], list[list[float]], float]:
-    """Run one paper scenario through the master: (columns, rows, wall time [s])."""
+    """Run one paper scenario through the master at its resolving step: (columns, rows, wall time [s])."""
     scenario = read_scenario(SCENARIOS / name, fmu_dir=fmus_of(SCENARIOS / name, fmu_dir))
     tic = time.perf_counter()
-    result = simulate(scenario, stop_time=stop_time, progress=progress)
+    result = simulate(scenario, stop_time=stop_time, step_size=resolving_step(scenario), progress=progress)
     return result.columns, result.rows, time.perf_counter() - tic
 
 
@@ -276,7 +301,7 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
 
 def _n_steps(name: str, stop_time: float | None) -> float:
     s = read_scenario(SCENARIOS / name)
-    return ((stop_time or s.stop_time) - s.start_time) / s.step_size
+    return ((stop_time or s.stop_time) - s.start_time) / resolving_step(s)
 
 
 def ensure_fmus(out=sys.stderr) -> None:
@@ -302,9 +327,12 @@ def figure_specs(runs: dict[str, report.Run]) -> list[tuple[report.FigureSpec, s
                                            "MEMS regulation to q_d = 30 µm without and with coupled damping "
                                            "(Theorem 2, Fig. 1)", "q_d (eta_d)"), "fig1_mems_regulation"))
     if {"mems_track_0", "mems_track_1"} <= runs.keys():
-        specs.append((report.states_figure([runs["mems_track_0"], runs["mems_track_1"]],
-                                           "MEMS tracking of q* = 0.05 + 0.05 sin 30t without and with coupled damping "
-                                           "(Fig. 2)", "q* (eta*)"), "fig2_mems_tracking"))
+        # Fig. 2 over the tracking runs' 0.25 s (1.2 periods of sin 30t) where reproduce made them: the
+        # scenarios' 50 ms is a quarter period, where the tracking reads as a ramp (issue 35)
+        track = [runs.get(decision_role(role), runs[role]) for role in ("mems_track_0", "mems_track_1")]
+        specs.append((report.states_figure(track,
+                                           "MEMS tracking of q*(t) = 0.05 m + 0.05 m sin(30 rad/s t) without and with "
+                                           "coupled damping (Fig. 2)", "q* (eta*)"), "fig2_mems_tracking"))
     maglev = [runs[f"maglev_{i}"] for i in range(1, 5) if f"maglev_{i}" in runs]
     if len(maglev) == 4:
         specs.append((report.states_figure(maglev, "Maglev tracking, four cases (Theorem 3, paper's D_d convention, "

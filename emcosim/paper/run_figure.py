@@ -8,6 +8,8 @@ the engine's figure of the recorded variables instead (emcosim.engine.plotting.v
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..engine.errors import ScenarioError
@@ -19,10 +21,19 @@ from . import report
 def run_figure(scenario: Scenario, result, start_values: dict | None = None) -> FigureSpec | None:
     """The figure of a run of a suite scenario, or None if the scenario is not one (no plant and
     controller FMU of this suite) or the result lacks the plant state or the input."""
+    from components import catalog
+
+    from ..devices.registry import register_fmu
     from ..engine.ssd import with_values
     from . import design_facts
     from .reproduce import plant_and_controller, run_from_result
 
+    for comp in scenario.components:             # a device's FMUs (emcosim plant build) carry their description
+        if Path(comp.source).stem not in catalog.GAINS and Path(comp.source).is_file():
+            try:
+                register_fmu(comp.source)
+            except ValueError:                   # a description that does not register: the generic figure
+                return None
     try:
         plant, controller = plant_and_controller(scenario)
     except ValueError:

@@ -44,7 +44,10 @@ def metrics_of(scenario: Scenario, values: dict[str, float], result) -> dict[str
     from .reproduce import run_from_result
 
     run = run_from_result(scenario.name, scenario.name, with_values(scenario, values), result)
-    return asdict(report.run_metrics(run))
+    metrics = asdict(report.run_metrics(run))
+    for key in ("resolution", "unresolved"):      # the reproduce report's resolution check (issue 35): not a column
+        metrics.pop(key)
+    return metrics
 
 
 def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], options: RunOptions | None = None,

@@ -51,7 +51,10 @@ def test_the_engine_the_api_and_the_cli_record_the_same(tmp_path, fmu_dir):
     engine = simulate(scenario, stop_time=0.02)                     # the engine's own default
     result = emcosim.run("maglev_regulation_prop2", emcosim.RunOptions(stop_time=0.02))
     out = tmp_path / "cli.csv"
-    assert main(["run", "maglev_regulation_prop2", "--stop-time", "0.02", "-o", str(out), "--no-progress"]) == 0
+    # one step: its own error estimate is 1.1 % of the tiny range of u, above the default 1 %; this test is about
+    # what is recorded, so the threshold is lifted (the estimate's own tests: tests/test_fixed_error.py)
+    assert main(["run", "maglev_regulation_prop2", "--stop-time", "0.02", "-o", str(out), "--no-progress",
+                 "--error-threshold", "1"]) == 0
     cli = read_csv(out)
     assert engine.columns == result.columns == [n for n in cli if n != "time"]
     assert "controller.q" not in result.columns and "plant.q" in result.columns     # once, not twice

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from emcosim.engine.ssd import read_scenario
+
 ROOT = Path(__file__).resolve().parents[1]
 RUN = """
 import sys
@@ -28,4 +30,5 @@ def test_libcosim_in_this_process_exits_cleanly(attempt, fmu_dir):
                            str(fmu_dir)], capture_output=True, text=True, timeout=120, cwd=str(ROOT))
     assert proc.returncode == 0, (proc.returncode, proc.stderr[-2000:])
     rows, t_end = proc.stdout.strip().splitlines()[-1].split()      # libcosim logs to stdout too
-    assert int(rows) == 21 and float(t_end) == 0.5             # 20 steps of the scenario's 25 ms, and t = 0
+    steps = round(0.5 / float(read_scenario(ROOT / "scenarios" / "maglev_tracking_D-1_R0.82").step_size))
+    assert int(rows) == steps + 1 and float(t_end) == 0.5      # the scenario's steps over 0.5 s, and t = 0

@@ -19,6 +19,7 @@ from fmpy.fmi2 import FMU2Model
 from fmpy.validation import validate_fmu
 
 from components.ph_plant import Jet
+from emcosim.engine.results import read_csv
 from fmus.native_build import GENERATOR, build_native
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -440,9 +441,9 @@ def test_paper_scenario_with_the_native_plant(native, fmu_dir, tmp_path: Path, s
         out = tmp_path / f"{label}.csv"
         assert main(["run", str(root / "scenarios" / scenario), "--fmu-dir", str(folder), "--interface-type", interface,
                      "--no-progress", "-o", str(out)]) == 0
-        runs.append(np.genfromtxt(out, delimiter=",", names=True))
-    assert len(runs[0]) == len(runs[1]) > 100
-    for name in runs[0].dtype.names[1:]:
+        runs.append(read_csv(out))   # its comment lines (the error estimate, notes) skipped
+    assert len(runs[0]["time"]) == len(runs[1]["time"]) > 100
+    for name in [n for n in runs[0] if n != "time"]:
         scale = np.max(np.abs(runs[0][name])) or 1.0
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
 
@@ -562,9 +563,9 @@ def test_paper_scenario_all_native(native, native_controllers, native_reference,
         out = tmp_path / f"{label}.csv"
         assert main(["run", str(root / "scenarios" / scenario), "--fmu-dir", str(folder), "--interface-type", interface,
                      "--no-progress", "-o", str(out)]) == 0
-        runs.append(np.genfromtxt(out, delimiter=",", names=True))
-    assert len(runs[0]) == len(runs[1]) > 10
-    for name in runs[0].dtype.names[1:]:
+        runs.append(read_csv(out))   # its comment lines (the error estimate, notes) skipped
+    assert len(runs[0]["time"]) == len(runs[1]["time"]) > 10
+    for name in [n for n in runs[0] if n != "time"]:
         scale = np.max(np.abs(runs[0][name])) or 1.0
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
 

@@ -293,6 +293,7 @@ def _one_at_a_time(c_calls, folder: Path, output: str) -> float:
     return float(lines[3][2])
 
 
+@pytest.mark.slow      # 8-21 s: in the full set, out of the quick one (issue 33)
 def test_two_different_fmus_instantiated_at_once_from_two_threads(c_threads, c_calls, fmus, tmp_path):
     """Issue 26, item 7: a C host without Python instantiates two different emcosim FMUs at the same moment
     from two threads. Every FMU binary had its own lock around starting Python, so both loaders started it

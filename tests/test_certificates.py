@@ -346,6 +346,7 @@ def test_sdp_rate_is_at_least_the_direct_search_on_every_paper_scenario(paper_ce
             assert sdp > 0, name
 
 
+@pytest.mark.slow      # 8-21 s: in the full set, out of the quick one (issue 33)
 def test_docs_list_certify_output_for_every_scenario(paper_certificates):
     """docs/certificates.md holds `emcosim certify NAME` for every scenario, as
     `python -m emcosim.paper.certify` writes it (verdicts and numbers to 1e-4; solver-path lines aside)."""

@@ -112,6 +112,7 @@ def decided(fmu_dir):
     return runs, walls
 
 
+@pytest.mark.slow      # 8-21 s: in the full set, out of the quick one (issue 33)
 def test_decision_runs_decide_claims_1_and_6(decided):
     """Issue 26, item 10: the scenarios' horizons left claim 1 (MEMS regulation, D_d = 0, converges: the band
     at 33 ms against a 20 ms horizon) and claim 6 (all four maglev cases converge: case 1 at about 216 s against
@@ -139,6 +140,7 @@ def test_decision_runs_decide_claims_1_and_6(decided):
     assert "over 0.02 s" in oscillates.test                      # the other claims keep the scenarios' horizons
 
 
+@pytest.mark.slow      # its fixture runs the decision runs (10 s): in the full set (issue 33)
 def test_the_report_lists_the_decision_runs(decided, tmp_path):
     runs, _ = decided
     report.write_reports({r.name: r for r in runs.values()}, {role: r.name for role, r in runs.items()}, tmp_path, [])

@@ -13,7 +13,6 @@ built at random states.
 """
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from components import differentiation
 from emcosim.cli import main
 from emcosim.devices import registry
 from emcosim.devices.scenario import StackedReference, reference_components
+from emcosim.engine.results import read_csv
 from tests.helpers import random_state_near
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -206,8 +206,7 @@ def _run(folder: Path, fmu_dir: Path, tmp_path: Path, interface: str) -> dict[st
     out = tmp_path / f"{folder.parent.name}_{folder.name}_{interface}.csv"
     assert main(["run", str(folder), "--fmu-dir", str(fmu_dir), "--interface-type", interface, "--output", str(out),
                  "--no-progress"]) == 0
-    rows = list(csv.DictReader(out.open()))
-    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+    return read_csv(out)          # the results' comment lines (the run's error estimate) skipped
 
 
 CASES = [("TwoMagnetBall", "scenario", None), ("TwoMagnetBall", "tracking", (5.0, 0.005, 0.001, [100.0, -100.0])),

@@ -152,10 +152,11 @@ def test_the_report_lists_the_decision_runs(decided, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("role, band", [("mems_reg_0", 0.0331), ("maglev_1", 216.44)])
+@pytest.mark.parametrize("role, band", [("mems_reg_0", 0.03326), ("maglev_1", 216.44)])
 def test_decision_runs_settle_as_the_monolithic_reference(decided, role, band):
     """The decision runs' time into the 2 % band, against the monolithic closed loop over the same horizon
-    (about 17 s and 28 s of Radau): 33.1 ms and 216.44 s."""
+    (about 17 s and 28 s of Radau): 33.26 ms and 216.44 s (33.1 ms before issue 35: the metrics then read the
+    band time off the 0.1 ms recording grid; now off a signal that resolves the loop)."""
     runs, _ = decided
     cosim = runs[decision_role(role)]
     truth = monolithic_run(PAPER_CASES[role], role, DECISION_RUNS[role])

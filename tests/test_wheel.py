@@ -117,7 +117,7 @@ def test_the_readme_runs_from_an_installed_wheel_in_an_empty_folder(tmp_path):
     assert "Proposition1" in ok(emcosim, "plant", "check", "solenoid.toml")
     ok(emcosim, "plant", "build", "solenoid.toml", "--out", "build/Solenoid")
     ok(emcosim, "plant", "scenario", "solenoid.toml", "--controller", "Proposition1", "--fmu-dir", "build/Solenoid",
-       "--q0", "0.0007", "--stop-time", "0.01", "--step-size", "1e-4", "--out", "my_scenario")
+       "--q0", "0.0007", "--stop-time", "0.01", "--step-size", "2e-5", "--out", "my_scenario")
     ok(emcosim, "run", "my_scenario", "--no-progress")
     assert (work / "my_scenario.csv").stat().st_size > 0
     blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)

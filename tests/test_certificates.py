@@ -231,6 +231,7 @@ def test_best_coupled_damping():
         assert rate >= max(linearized_rate(plant, x) for x in np.linspace(*SEARCH_INTERVALS[plant], 200))
 
 
+@pytest.mark.slow      # 4-6 s: in the full set, out of the quick one (issue 33)
 def test_certify_a_scenario_file():
     from emcosim.paper.certify import certify_scenario
     cert = certify_scenario("scenarios/maglev_tracking_D-1_R0.82")

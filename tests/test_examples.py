@@ -138,6 +138,7 @@ def test_a_sweep_point_of_an_example_gives_the_metrics_of_its_first_position(nam
     assert abs(row["final_error"]) < 0.02 * abs(row["initial_error"])
 
 
+@pytest.mark.slow      # 4-6 s: in the full set, out of the quick one (issue 33)
 def test_tracking_with_one_reference_fmu_per_position_agrees_with_the_monolithic_loop(built, tmp_path):
     """The bar's Theorem 3 loop with z* and theta* from two Reference FMUs (reference_z, reference_theta wired to
     z_star..., theta_star...; theta in rad through suppressUnitConversion) against scipy's Radau with the same

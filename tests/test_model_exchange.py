@@ -561,6 +561,7 @@ def fmpy_simulate(fmu: Path, out: Path, *options: str) -> subprocess.CompletedPr
                            *options], check=False, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow      # 4-6 s: in the full set, out of the quick one (issue 33)
 def test_fmpy_simulates_each_fmu_as_model_exchange_like_its_co_simulation(fmus, tmp_path):
     """`fmpy simulate --interface-type ModelExchange` (CVode at rtol 1e-10, absolute tolerance rtol times the
     nominals) against the FMU's Co-Simulation run of the same default experiment (doStep's RODAS4 at rtol

@@ -4,7 +4,8 @@ environment (`env -i`), as both interfaces: what fmusim and the FMU Compliance C
 
 - Co-Simulation: tests/fixtures/c_host.c (set + doStep + get, 200 steps with inputs varied by 1 %);
 - Model Exchange: tests/fixtures/c_me_host.c (RK4 of the plants' states) and tests/fixtures/c_calls.c
-  (`instme`: the controllers' u and the Reference's jet after fmi2SetTime, no states).
+  (`instme`: the controllers' u and the Reference's jet after fmi2SetTime, no states);
+- the example devices' native FMUs (`emcosim plant build --native`) the same way, at the end.
 
 Truths: components/ (the laws' scalar forms, PlantStepper, components.references) and scipy's Radau on
 `EMPlant.f`, the same as the pythonfmu FMUs meet in tests/test_c_host.py and tests/test_model_exchange.py.
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +37,7 @@ from .c_host import (
 from .test_model_exchange import ME_HOST, STATES, components_plant, components_solution, run_c_me_host, starts
 
 pytestmark = [pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc"),
-              pytest.mark.slow]                    # 9 s of CPU, most of it building the seven FMUs
+              pytest.mark.slow]                    # 14 s of CPU, most of it building the FMUs
 N = 200
 PLANT_RUNS = {"MEMS": ({"u": 25.0}, 1e-6), "Maglev": ({"u": 0.009045}, 1e-4)}
 
@@ -197,3 +199,62 @@ def test_empty_set_calls_are_accepted_after_initialization(hosts, native, tmp_pa
                                                               ["seti", "3"], ["free"]], (lines, run.stderr)
     for name in (real, integer):
         assert f"the parameter {name} cannot be set in step mode" in run.stderr, run.stderr
+
+
+# ---- the example devices' native FMUs -----------------------------------------------------------------
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(scope="module")
+def device_fmus(tmp_path_factory) -> dict[str, Path]:
+    """`emcosim plant build --native` of a device with designs (Solenoid: plant, Proposition1, Theorem2) and of
+    one with n_m = n_e = 2 (LevitatedBar: the plant alone)."""
+    from emcosim.devices.build import build_native_fmus_of
+    out = tmp_path_factory.mktemp("device_fmus")
+    fmus: dict[str, Path] = {}
+    for device in ("solenoid", "levitated_bar"):
+        fmus.update(build_native_fmus_of(EXAMPLES / device / f"{device}.toml", out))
+    return {path.stem: path for path in fmus.values()}
+
+
+def test_example_device_fmus_in_c_hosts(hosts, device_fmus, tmp_path):
+    """Every native FMU the example devices build, in the C hosts under env -i, exit 0 and nothing logged:
+    a plant's states after 0.01 s with its inputs held, by RK4 as Model Exchange (c_me_host.c, at h and 2h)
+    and by its own RODAS4 as Co-Simulation (c_calls.c), agree within RK4's Richardson estimate plus 1e-7 of
+    the state (doStep's rtol is 1e-8); a controller's u equals itself through both interfaces (c_host.c,
+    c_calls.c `instme`), bit for bit, at the inputs c_host.c ends with."""
+    assert sorted(device_fmus) == ["LevitatedBar", "Solenoid", "Solenoid_Proposition1", "Solenoid_Theorem2"]
+    for name, fmu in device_fmus.items():
+        md = read_model_description(str(fmu))
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        inputs = {v.name: float(v.start) for v in md.modelVariables if v.causality == "input"}
+        folder, _ = extract(fmu, tmp_path / "cs")
+        if md.derivatives:                                                   # a plant
+            states = [d.variable.derivative.name for d in md.derivatives]
+            h, n = 1e-5, 1000
+            calls = ["inst", "init", "step", "0", repr(n * h), *(w for s in states for w in ("getr", str(vr[s])))]
+            run, lines = run_calls(hosts["calls"], folder, [*calls, "free"])
+            _clean(run)
+            cs = np.array([float(w[2]) for w in lines if w[0] == "getr"])
+            me = []
+            u_name = next(iter(inputs))                                      # held at its start, as the others
+            for k in (1, 2):
+                unzipped, _ = extract(fmu, tmp_path / f"me{k}")
+                run = subprocess.run(["env", "-i", str(hosts["me"]), str(unzipped / "binaries" / "linux64" / f"{name}.so"),
+                                      name, (unzipped / "resources").as_uri(), md.guid, repr(k * h), str(n // k),
+                                      str(len(states)), str(md.numberOfEventIndicators), str(vr[u_name]),
+                                      repr(inputs[u_name])], capture_output=True, text=True, timeout=300)
+                _clean(run)
+                out = [float(v) for v in run.stdout.split()]
+                assert out[1] == pytest.approx(n * h, rel=1e-12), name
+                me.append(np.array(out[2:2 + len(states)]))
+            nominal = np.array([float(next(v for v in md.modelVariables if v.name == s).nominal or 1.0) for s in states])
+            estimate = np.abs(me[1] - me[0]) / 15
+            assert np.all(np.abs(me[0] - cs) <= 3 * estimate + 1e-7 * np.maximum(np.abs(cs), nominal)), (name, me[0], cs)
+        else:                                                                # a controller
+            run, values = run_in_c_host(hosts["cs"], fmu, tmp_path / "host", inputs, ["u"], 1e-3, N)
+            _clean(run)
+            x = last_inputs(inputs, N)
+            calls = [w for k, v in zip(inputs, x) for w in ("setr", str(vr[k]), repr(v))] + ["getr", str(vr["u"])]
+            lines = _me_calls(hosts, fmu, tmp_path / "me", calls)
+            assert float(lines[-3][2]) == values[2], (name, lines, values)

@@ -358,11 +358,17 @@ fmi2Status fmi2GetInteger(fmi2Component component, const fmi2ValueReference vr[]
 fmi2Status fmi2SetInteger(fmi2Component component, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
 {
     size_t i;
-    ENTER("fmi2SetInteger", M_INSTANTIATED | M_INITIALIZATION);
+    /* allowed wherever FMI 2.0 allows fmi2SetInteger (a host may set no variable, nvr = 0, in any such mode);
+       the parameter strict only before fmi2ExitInitializationMode */
+    ENTER("fmi2SetInteger", M_INSTANTIATED | M_INITIALIZATION | M_EVENT | M_CONTINUOUS | M_STEP);
     if (check_references(c, "fmi2SetInteger", vr, nvr, value) != fmi2OK) return fmi2Error;
-    for (i = 0; i < nvr; i++)
+    for (i = 0; i < nvr; i++) {
         if (EMC_VARIABLES[vr[i]].kind != EMC_C_STRICT)
             return fail(c, fmi2Error, "fmi2SetInteger: %s is a Real variable", EMC_VARIABLES[vr[i]].name);
+        if (!(c->d.mode & (M_INSTANTIATED | M_INITIALIZATION)))
+            return fail(c, fmi2Error, "fmi2SetInteger: the parameter %s cannot be set %s", EMC_VARIABLES[vr[i]].name,
+                        mode_name(c->d.mode));
+    }
     for (i = 0; i < nvr; i++) c->d.strict = value[i];
     return fmi2OK;
 }

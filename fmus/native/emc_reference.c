@@ -310,11 +310,15 @@ fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueReference vr[], s
 fmi2Status fmi2SetReal(fmi2Component component, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
 {
     size_t i;
-    ENTER("fmi2SetReal", M_INSTANTIATED | M_INITIALIZATION);
+    /* allowed wherever FMI 2.0 allows fmi2SetReal (a host may set no variable, nvr = 0, in any such mode);
+       the parameters only before fmi2ExitInitializationMode, as emc_fmi2.c */
+    ENTER("fmi2SetReal", M_INSTANTIATED | M_INITIALIZATION | M_EVENT | M_CONTINUOUS | M_STEP);
     if (check_references(c, "fmi2SetReal", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const emc_r_variable *v = &EMC_VARIABLES[vr[i]];
         if (v->kind != EMC_R_PARAMETER) return fail(c, fmi2Error, "fmi2SetReal: %s cannot be set", v->name);
+        if (!(c->d.mode & (M_INSTANTIATED | M_INITIALIZATION)))
+            return fail(c, fmi2Error, "fmi2SetReal: the parameter %s cannot be set %s", v->name, mode_name(c->d.mode));
         if (!isfinite(value[i])) return fail(c, fmi2Error, "fmi2SetReal: %s = %g is not finite", v->name, value[i]);
     }
     for (i = 0; i < nvr; i++) c->d.par[EMC_VARIABLES[vr[i]].index] = value[i];
@@ -337,11 +341,15 @@ fmi2Status fmi2GetInteger(fmi2Component component, const fmi2ValueReference vr[]
 fmi2Status fmi2SetInteger(fmi2Component component, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
 {
     size_t i;
-    ENTER("fmi2SetInteger", M_INSTANTIATED | M_INITIALIZATION);
+    ENTER("fmi2SetInteger", M_INSTANTIATED | M_INITIALIZATION | M_EVENT | M_CONTINUOUS | M_STEP);   /* as fmi2SetReal */
     if (check_references(c, "fmi2SetInteger", vr, nvr, value) != fmi2OK) return fmi2Error;
-    for (i = 0; i < nvr; i++)
+    for (i = 0; i < nvr; i++) {
         if (EMC_VARIABLES[vr[i]].kind != EMC_R_KIND)
             return fail(c, fmi2Error, "fmi2SetInteger: %s is a Real variable", EMC_VARIABLES[vr[i]].name);
+        if (!(c->d.mode & (M_INSTANTIATED | M_INITIALIZATION)))
+            return fail(c, fmi2Error, "fmi2SetInteger: the parameter %s cannot be set %s", EMC_VARIABLES[vr[i]].name,
+                        mode_name(c->d.mode));
+    }
     for (i = 0; i < nvr; i++) c->d.kind = value[i];
     return fmi2OK;
 }

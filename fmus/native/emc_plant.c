@@ -24,7 +24,11 @@
 
 #define EMC_N EMC_N_STATES
 #define EMC_MAX_ORDER 16                   /* input derivative orders fmi2SetRealInputDerivatives takes */
-#define EMC_MAX_SUBSTEPS 100000            /* substeps of one doStep (components.plant_step.MAX_SUBSTEPS) */
+/* substeps of one doStep at the most (components.plant_step.MAX_SUBSTEPS): a real-time target may compile with
+   -DEMC_MAX_SUBSTEPS=N to bound a step's time by N substeps (a step that needs more answers fmi2Discard) */
+#ifndef EMC_MAX_SUBSTEPS
+#define EMC_MAX_SUBSTEPS 100000
+#endif
 #define EMC_RTOL_MIN 1e-14                 /* components.plant_step.RTOL_RANGE */
 #define EMC_RTOL_MAX 1e-2
 
@@ -36,6 +40,7 @@ typedef struct {
     double rtol;
     double u[EMC_N_INPUTS];
     double x[EMC_N];
+    double scale[EMC_N];                       /* the nominal (q, p, x_e), fixed at initialization */
     /* Co-Simulation */
     double h_next;                             /* the substep proposed for the next step (0: none yet) */
     int have_u_end;                            /* the input at the end of the last step is in force */
@@ -285,6 +290,7 @@ fmi2Status emc_exit_initialization(emc_instance *c, emc_common *d)
         return emc_fail(c, fmi2Error, "fmi2ExitInitializationMode: parameter rtol = %g violates 1e-14 <= rtol <= 1e-2 "
                         "(relative tolerance of the plant integration)", m->rtol);
     memcpy(m->x, m->x0, sizeof m->x);
+    nominals(m->par, m->scale);                /* the parameters are fixed from here on */
     m->h_next = 0.0;
     return fmi2OK;
 }
@@ -292,6 +298,7 @@ fmi2Status emc_exit_initialization(emc_instance *c, emc_common *d)
 fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_common *d)
 {
     const emc_plant *m = (const emc_plant *)d;
+    double scale[EMC_N];
     char why[200];
     int bad;
     if (!emc_all_finite(m->par, EMC_N_PARAMETERS) || !emc_all_finite(m->x0, EMC_N) || !isfinite(m->rtol)
@@ -305,6 +312,9 @@ fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_comm
                             EMC_PARAMETER_NAMES[bad], m->par[bad], EMC_PARAMETER_NAMES[bad], EMC_PARAMETER_CONDITIONS[bad]);
         if (domain_problem(m->par, m->x, why, sizeof why))
             return emc_fail(c, fmi2Error, "%s: the FMU state's state is not admissible: %s", function, why);
+        nominals(m->par, scale);
+        if (memcmp(scale, m->scale, sizeof scale) != 0)
+            return emc_fail(c, fmi2Error, "%s: the FMU state's nominal scale is not its parameters'", function);
     }
     return fmi2OK;
 }
@@ -534,15 +544,16 @@ static double integration_tolerance(const emc_plant *m)
     return tol < m->rtol ? tol : m->rtol;
 }
 
-/* integrate the step [0, h] from m->x; 0 with `why` on failure (the state is kept) */
-static int integrate(const emc_plant *m, const emc_poly *P, double h, double *x_end, double *h_next, char *why, size_t size)
+/* integrate the step [0, h] from `start`; 0 with `why` on failure (the state is kept) */
+static int integrate(const emc_plant *m, const emc_poly *P, const double *start, double h, double *x_end, double *h_next,
+                     char *why, size_t size)
 {
-    double s[EMC_N], y[EMC_N], y_new[EMC_N], err[EMC_N], eta[EMC_N];
+    const double *s = m->scale;
+    double y[EMC_N], y_new[EMC_N], err[EMC_N], eta[EMC_N];
     const double rtol = integration_tolerance(m), h_min = 1e-13 * h;
     double t = 0.0, hs = (m->h_next > 0.0 && m->h_next < h) ? m->h_next : h;
     int n = 0, k;
-    nominals(m->par, s);
-    for (k = 0; k < EMC_N; k++) y[k] = m->x[k] / s[k];
+    for (k = 0; k < EMC_N; k++) y[k] = start[k] / s[k];
     for (n = 0; n < EMC_MAX_SUBSTEPS; n++) {
         const double remaining = h - t;
         const int last = hs >= remaining * (1.0 - 1e-9);
@@ -582,11 +593,130 @@ static int integrate(const emc_plant *m, const emc_poly *P, double h, double *x_
 }
 
 
+#if EMC_N_M == 1 && EMC_N_INPUTS == 1
+/* ---- the electrical layer in closed form: components.plant_step.PlantStepper.layer, in C ---------------
+   For n_m = n_e = 1 the electrical row is linear in x_e for a fixed q: x_e' = -alpha(q) x_e + G_e u(t) with
+   alpha = -(J_e - R_e) Psi(q) > 0. x_e = x_s + delta splits into x_s on the slow manifold and a layer
+   delta' = -alpha delta that decays from delta_0 = x_e - x_s(0); the layer acts on the mechanics only through the
+   momentum kick of its extra force -1/2 Psi'(q) (2 x_s delta + delta^2). When the layer is stiff for the step
+   (alpha h >= LAYER_MIN_DECAY), fast for the mechanics (alpha T_m >= LAYER_SEPARATION) and what it neglects is
+   below LAYER_TOL times the step's tolerance, the step integrates the smooth part from (q + dq, p + dp, x_s(0))
+   and adds delta(h) to x_e at its end. Derivation: docs/derivations.md, "Plant step"; the module doc of
+   components/plant_step.py. F = [[0, 1, 0], [-1, -R_m, 0], [0, 0, J_e - R_e]] (components.symbolic.F): F_qp = 1,
+   F_pq = -1; F_pp and F_xx are read from the Jacobian F hess H. */
+#define LAYER_MIN_DECAY 1.0       /* components.plant_step's constants */
+#define LAYER_SEPARATION 100.0
+#define LAYER_TOL 0.1
+#define LAYER_GONE 50.0
+#define F_PQ (-1.0)
+
+/* int_0^h tau^k exp(-beta tau) d tau, k = 0..3 (beta h >= 1: no cancellation): components.plant_step._moments */
+static void moments(double beta, double h, double *out)
+{
+    const double bh = beta * h, E = bh < LAYER_GONE ? exp(-bh) : 0.0, ib = 1.0 / beta;
+    out[0] = (1.0 - E) * ib;
+    out[1] = (1.0 - E * (1.0 + bh)) * pow(ib, 2.0);
+    out[2] = (2.0 - E * (2.0 + bh * (2.0 + bh))) * pow(ib, 3.0);
+    out[3] = (6.0 - E * (6.0 + bh * (6.0 + bh * (3.0 + bh)))) * pow(ib, 4.0);
+}
+
+/* the layer of a step of size h from eta (q, p, x_e) with the input polynomial P: where it applies, eta becomes the
+   smooth part's start (q_0, p_0, x_s(0)) and *x_left what is left of the layer at the end of the step (0 if it
+   ends inside the step); else nothing changes. The same operations in the same order as PlantStepper.layer. */
+static void layer(const emc_plant *m, const emc_poly *P, double h, double *eta, double *x_left)
+{
+    const double *par = m->par;
+    const double q = eta[0], p = eta[1], x = eta[2], u = P->c[0][0], du = P->c[1][0];
+    const double sq = m->scale[0], sp = m->scale[1], sx = m->scale[2];
+    double zero[3] = {0.0, 0.0, 0.0}, J[9], g[3], Psi, dPsi, d2Psi, dV, d2V, Minv0, Minv, d2u = P->c[2][0];
+    double m_inv, t_mech, F_xx, J_qp, J_pp, alpha, ah, ia, v, alpha1, x_s, x_s1, d0, tol, xx, k_s, size, r1, sigma, kick;
+    double Phi0, Phi1, B0, B1, Jm[4], Lm[4], d00, M0, M1, M2, dq, dp, E, a_q, alpha2, r2;
+    int k;
+    *x_left = 0.0;
+    emc_Psi(par, eta, NULL, &Psi);
+    emc_jacobian(par, eta, P->c[0], J);
+    alpha = -J[8];                             /* -(J_e - R_e) Psi(q) */
+    emc_M_inv(par, zero, NULL, &Minv0);
+    m_inv = Minv0;                             /* the twin's m_inv: M^-1 at q = 0 */
+    t_mech = (1.0 / m_inv) * sq / sp;          /* components.plant_step.mechanical_time: m L / (m L / T) */
+    ah = alpha * h;
+    if (!(ah >= LAYER_MIN_DECAY && alpha * t_mech >= LAYER_SEPARATION))
+        return;
+    emc_dPsi(par, eta, NULL, &dPsi);
+    emc_d2Psi(par, eta, NULL, &d2Psi);
+    emc_grad_V(par, eta, NULL, &dV);
+    emc_hess_V(par, eta, NULL, &d2V);
+    emc_M_inv(par, eta, NULL, &Minv);
+    emc_g(par, eta, P->c[0], g);
+    F_xx = J[8] / Psi;
+    ia = 1.0 / alpha;
+    J_qp = 1.0 * m_inv;
+    J_pp = (J[4] / Minv) * m_inv;              /* F_pp m^-1 */
+    /* the slow manifold x_s of the electrical row and its rate, to first order in 1/alpha */
+    v = J_qp * p;                              /* q' */
+    alpha1 = -F_xx * dPsi * v;                 /* alpha' along the motion */
+    if (P->order >= 3) {                       /* orders k >= 3 enter through the u'' slot: sum_k (-1/alpha)^(k-2) u^(k) */
+        double sum = 0.0;
+        for (k = 3; k <= P->order; k++)
+            if (P->c[k][0] != 0.0) sum += P->c[k][0] * pow(-ia, (double)(k - 2));
+        d2u = d2u + sum;
+        if (!isfinite(d2u)) return;
+    }
+    x_s = g[2] * ia * (u - ia * (du - ia * d2u) + u * alpha1 * ia * ia);
+    x_s1 = g[2] * ia * (du - ia * d2u - u * alpha1 * ia);
+    d0 = x - x_s;
+    tol = LAYER_TOL * integration_tolerance(m);
+    /* relative rates over the layer: r1 (first derivatives of alpha, Psi', x_s along the motion) and sigma (the
+       mechanics: J_s with x_e on its manifold, k_s = J_pq - J_px J_xq / J_xx) */
+    xx = x_s * x_s;
+    k_s = F_PQ * (d2V + 0.5 * xx * d2Psi - xx * dPsi * dPsi / Psi);
+    size = fabs(x_s) + fabs(d0);
+    if (size == 0.0) size = 1.0;
+    r1 = (fabs(alpha1) * ia + (dPsi != 0.0 ? fabs(d2Psi * v / dPsi) : 0.0) + fabs(x_s1) / size) * ia;
+    sigma = fmax(fmax(sqrt(fabs(k_s * J_qp)), fabs(J_pp)), 1.0 / t_mech) * ia;
+    kick = fabs(d0) * (fabs(dPsi * x_s) + fabs(d0 * dPsi) * 0.25) * ia;   /* size of the zeroth-order kick */
+    if (ah >= LAYER_GONE && kick * (r1 + sigma) <= tol * (sp + fabs(p)) && fabs(J_qp) * kick * ia <= tol * (sq + fabs(q))) {
+        /* the layer ends inside the step and its first-order terms are below a tenth of the tolerance */
+        eta[1] = p + F_PQ * dPsi * d0 * (x_s + 0.25 * d0) * ia;
+        eta[2] = x_s;
+        return;
+    }
+    /* the layer's extra force on the p-row and its moments M_k = int_0^h tau^k / k! G d tau */
+    Phi0 = F_PQ * dPsi * x_s;
+    Phi1 = F_PQ * (d2Psi * v * x_s + dPsi * x_s1);
+    B0 = 0.5 * F_PQ * dPsi;
+    B1 = 0.5 * F_PQ * d2Psi * v;
+    moments(alpha, h, Jm);
+    moments(2.0 * alpha, h, Lm);
+    d00 = d0 * d0;
+    M0 = d0 * (Phi0 * Jm[0] + Phi1 * Jm[1] - 0.5 * alpha1 * Phi0 * Jm[2]) + d00 * (B0 * Lm[0] + B1 * Lm[1] - alpha1 * B0 * Lm[2]);
+    M1 = d0 * (Phi0 * Jm[1] + Phi1 * Jm[2] - 0.5 * alpha1 * Phi0 * Jm[3]) + d00 * (B0 * Lm[1] + B1 * Lm[2] - alpha1 * B0 * Lm[3]);
+    M2 = 0.5 * (d0 * Phi0 * Jm[2] + d00 * B0 * Lm[2]);
+    /* the smooth part feels the force as if it all came at tau = 0: the kick M_0 and the corrections for its delay */
+    dq = -J_qp * M1 + J_qp * J_pp * M2;
+    dp = M0 - J_pp * M1 + (k_s * J_qp + J_pp * J_pp) * M2;
+    E = ah < LAYER_GONE ? exp(-ah - 0.5 * alpha1 * h * h) : 0.0;
+    /* what this neglects, relative to the kick (PlantStepper.layer): second order in the rates of the motion, a
+       cross term and third order in the mechanical rates; for delta(h) the next term of its exponent */
+    a_q = J_qp * (F_PQ * (dV + 0.5 * xx * dPsi) + J_pp * p);                /* q'' */
+    alpha2 = -F_xx * (d2Psi * v * v + dPsi * a_q);
+    r2 = (fabs(alpha2) * ia + (dPsi != 0.0 ? fabs(d2Psi * a_q / dPsi) : 0.0) + fabs(g[2] * d2u) * ia / size) * ia * ia;
+    if (kick * (r1 * r1 + r2 + r1 * sigma + pow(sigma, 3.0)) > tol * (sp + fabs(p))
+        || fabs(J_qp * kick) * ia * (r1 * r1 + r2 + sigma * sigma) > tol * (sq + fabs(q))
+        || fabs(d0) * E * fabs(alpha2) * h * h * h / 6.0 > tol * (sx + fabs(x_s)))
+        return;
+    eta[0] = q + dq;
+    eta[1] = p + dp;
+    eta[2] = x_s;
+    *x_left = d0 * E;
+}
+#endif
+
 fmi2Status emc_do_step(emc_instance *c, emc_common *d, double h)
 {
     emc_plant *m = (emc_plant *)d;
     emc_poly P;
-    double x_end[EMC_N], h_next = 0.0, bound = 0.0, term = 1.0;
+    double start[EMC_N], x_end[EMC_N], h_next = 0.0, bound = 0.0, term = 1.0, x_left = 0.0;
     char why[200], where[300];
     int i, k;
     memset(&P, 0, sizeof P);
@@ -605,11 +735,16 @@ fmi2Status emc_do_step(emc_instance *c, emc_common *d, double h)
     if (!isfinite(bound))
         return emc_fail(c, fmi2Discard, "fmi2DoStep at t = %.9g s: the input polynomial overflows over the step h = %g s",
                         d->time, h);
-    if (!integrate(m, &P, h, x_end, &h_next, why, sizeof why)) {
+    memcpy(start, m->x, sizeof start);
+#if EMC_N_M == 1 && EMC_N_INPUTS == 1
+    layer(m, &P, h, start, &x_left);           /* the electrical layer in closed form, where it applies */
+#endif
+    if (!integrate(m, &P, start, h, x_end, &h_next, why, sizeof why)) {
         format_state(m->x, where, sizeof where);
         return emc_fail(c, fmi2Discard, "doStep from t = %.9g s over h = %.6g s from (%s) failed: %s. The state is left "
                         "at t = %.9g s.", d->time, h, where, why, d->time);
     }
+    x_end[EMC_N - 1] += x_left;                /* what is left of the layer at the end of the step */
     memcpy(m->x, x_end, sizeof x_end);
     m->h_next = h_next;
     poly_value(&P, h, 0, m->u_end);

@@ -763,3 +763,34 @@ def test_win64_binary_runs_under_wine_as_linux64(native, tmp_path: Path) -> None
     assert windows.returncode == 0, windows.stderr[-2000:]
     assert linux.count("\n") == 15
     assert windows.stdout.replace("\r", "") == linux
+
+
+def test_rtol_rule_of_the_twin(native) -> None:
+    """The integration tolerance is fmus/plant.py's rule: the tighter of the parameter rtol and the master's
+    fmi2SetupExperiment tolerance, that one not below 1e-14. Each (rtol, tolerance) run of 20 Maglev steps with
+    input polynomials equals, bit for bit, the run without a tolerance at the rtol the rule gives; and the runs
+    at rtol 1e-4 and 1e-10 differ (the tolerance matters here)."""
+    from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(native["Maglev"]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzipped = extract(str(native["Maglev"]))
+
+    def run(rtol: float, tolerance: float | None) -> list[float]:
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier="Maglev", instanceName="m")
+        fmu.instantiate()
+        fmu.setupExperiment(tolerance=tolerance, startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.setReal([vr["rtol"]], [rtol])
+        fmu.exitInitializationMode()
+        for k in range(20):
+            fmu.setReal([vr["u"]], [1.0 + 0.1 * k])
+            fmu.setRealInputDerivatives([vr["u"]] * 2, [1, 2], [30.0, -400.0])
+            fmu.doStep(k * 2e-3, 2e-3)
+        out = fmu.getReal([vr["q"], vr["p"], vr["x_e"]])
+        fmu.terminate()
+        fmu.freeInstance()
+        return out
+
+    assert run(1e-4, None) != run(1e-10, None)
+    for rtol, tolerance, rule in ((1e-6, 1e-10, 1e-10), (1e-6, 1e-3, 1e-6), (1e-6, 1e-20, 1e-14), (1e-8, 1e-8, 1e-8)):
+        assert run(rtol, tolerance) == run(rule, None), (rtol, tolerance)

@@ -13,8 +13,12 @@
  * never with NaN. strict = 1 (the twin's design checks, components.certificates.design_checks) is not provided:
  * it is refused at fmi2ExitInitializationMode.
  *
- * Sizes come from emc_config.h: EMC_N_CONTROLLER_INPUTS inputs, EMC_N_CONTROLLER_OUTPUTS outputs (u, n_e of them;
- * 1 when the config does not say), the law's Jacobian row-major (outputs x inputs).
+ * Sizes come from emc_config.h: EMC_N_CONTROLLER_INPUTS inputs and EMC_N_OUTPUTS outputs (u, n_e of them), the law's
+ * Jacobian row-major (outputs x inputs). Two forms of controller.c are served: the law in one function,
+ * emc_ctrl_law (u, du/d inputs, or why the reference is not feasible) with emc_ctrl_check (the design's
+ * construction checks), for any n_m, n_e (the config defines EMC_N_OUTPUTS); or, for n_m = n_e = 1, the four
+ * functions emc_ctrl_u, emc_ctrl_du, emc_ctrl_reference, emc_ctrl_conditions with EMC_STRICT_PH and EMC_ASK_K_C.
+ * (The four-function form goes once every controller.c is generated in the one-function form.)
  */
 #include <math.h>
 #include <stdio.h>
@@ -24,10 +28,11 @@
 #include "emc_controller.h"
 
 #define EMC_NI EMC_N_CONTROLLER_INPUTS
-#ifndef EMC_N_CONTROLLER_OUTPUTS
-#define EMC_N_CONTROLLER_OUTPUTS 1
+#ifdef EMC_N_OUTPUTS
+#define EMC_NO EMC_N_OUTPUTS                /* the one-function law: emc_ctrl_law, emc_ctrl_check */
+#else
+#define EMC_NO 1                            /* the four-function law of n_m = n_e = 1 */
 #endif
-#define EMC_NO EMC_N_CONTROLLER_OUTPUTS
 
 /* the controller's data: everything that changes after instantiation (an FMU state is a copy) */
 typedef struct {
@@ -43,11 +48,9 @@ const size_t EMC_DATA_SIZE = sizeof(emc_data);
 const fmi2ValueReference EMC_VARIABLE_COUNT = EMC_N_VARIABLES;
 
 /* ---- the design ----------------------------------------------------------------------------------- */
-/* the parameters' and gains' conditions and the controller's construction checks (components.closed_loop:
-   R_e_bar > 0, k_c > 0, eq. pHcondition); for regulation, the constant reference's feasibility */
-static fmi2Status check_design(emc_instance *c, const char *function, const emc_data *d)
+/* the plant's parameters' and the gains' conditions */
+static fmi2Status check_values(emc_instance *c, const char *function, const emc_data *d)
 {
-    double cond[4], ref[2];
     int bad = emc_check_parameters(d->par);
     if (bad >= 0)
         return emc_fail(c, fmi2Error, "%s: parameter %s = %.17g violates %s %s (finite, 1e-100 <= |value| <= 1e100 unless 0)",
@@ -56,6 +59,36 @@ static fmi2Status check_design(emc_instance *c, const char *function, const emc_
     if (bad >= 0)
         return emc_fail(c, fmi2Error, "%s: parameter %s = %.17g violates %s %s (finite, 1e-100 <= |value| <= 1e100 unless 0)",
                         function, EMC_GAIN_NAMES[bad], d->gain[bad], EMC_GAIN_NAMES[bad], EMC_GAIN_CONDITIONS[bad]);
+    return fmi2OK;
+}
+
+#ifdef EMC_N_OUTPUTS
+/* the conditions, the controller's construction checks (emc_ctrl_check: components.closed_loop); for
+   regulation, the constant reference's feasibility */
+static fmi2Status check_design(emc_instance *c, const char *function, const emc_data *d)
+{
+    double u[EMC_NO];
+    char why[256];
+    const char *reason;
+    if (check_values(c, function, d) != fmi2OK) return fmi2Error;
+    if (emc_ctrl_check(d->par, d->gain, why, sizeof why) != 0) return emc_fail(c, fmi2Error, "%s: %s", function, why);
+    if (!EMC_TRACKING && (reason = emc_ctrl_law(d->par, d->gain, d->in, u, NULL)) != NULL)
+        return emc_fail(c, fmi2Error, "%s: the set point q_d is not feasible (Definition 1: %s)", function, reason);
+    return fmi2OK;
+}
+
+/* u and, if du is not NULL, du/d inputs (row-major) at the inputs: NULL, or why the reference is not feasible */
+static const char *law(const emc_data *d, double *u, double *du)
+{
+    return emc_ctrl_law(d->par, d->gain, d->in, u, du);
+}
+#else
+/* the conditions and the controller's construction checks (components.closed_loop: R_e_bar > 0, k_c > 0, eq.
+   pHcondition); for regulation, the constant reference's feasibility */
+static fmi2Status check_design(emc_instance *c, const char *function, const emc_data *d)
+{
+    double cond[4], ref[2];
+    if (check_values(c, function, d) != fmi2OK) return fmi2Error;
     emc_ctrl_conditions(d->par, d->gain, d->in, cond);
     if (!(cond[0] > 0.0))
         return emc_fail(c, fmi2Error, "%s: R_e_bar = %.6g violates R_e_bar = R_e + K_e > 0 (eq. barRe)", function, cond[0]);
@@ -74,22 +107,33 @@ static fmi2Status check_design(emc_instance *c, const char *function, const emc_
     return fmi2OK;
 }
 
-/* u at the current inputs: fmi2OK, or `status` with one log line (never NaN) */
-static fmi2Status compute_u(emc_instance *c, const char *function, fmi2Status status, emc_data *d, double *u)
+/* u and, if du is not NULL, du/d inputs at the inputs: NULL, or why the reference is not feasible */
+static const char *law(const emc_data *d, double *u, double *du)
 {
     double ref[2];
+    emc_ctrl_reference(d->par, d->gain, d->in, ref);
+    if (!(ref[0] > 0.0) || !(ref[1] > 0.0))
+        return !(ref[0] > 0.0) ? "q* is outside the domain" : "no real x_e* balances the force the reference needs";
+    emc_ctrl_u(d->par, d->gain, d->in, u);
+    if (du != NULL) emc_ctrl_du(d->par, d->gain, d->in, du);
+    return NULL;
+}
+#endif
+
+/* u (and du/d inputs if du is not NULL) at the current inputs: fmi2OK, or `status` with one log line (never NaN) */
+static fmi2Status compute_u(emc_instance *c, const char *function, fmi2Status status, emc_data *d, double *u, double *du)
+{
+    const char *reason;
     int i;
     for (i = 0; i < EMC_NI; i++)
         if (!isfinite(d->in[i]))
             return emc_fail(c, status, "%s: input %s = %g is not finite", function, EMC_INPUT_NAMES[i], d->in[i]);
     if (!(d->s.mode & M_INITIALIZED) && check_design(c, function, d) != fmi2OK)
         return status;
-    emc_ctrl_reference(d->par, d->gain, d->in, ref);
-    if (!(ref[0] > 0.0) || !(ref[1] > 0.0))
+    reason = law(d, u, du);
+    if (reason != NULL)
         return emc_fail(c, status, "%s at t = %.9g s: the reference is not feasible (Definition 1: %s)", function,
-                        d->s.time, !(ref[0] > 0.0) ? "q* is outside the domain"
-                                                   : "no real x_e* balances the force the reference needs");
-    emc_ctrl_u(d->par, d->gain, d->in, u);
+                        d->s.time, reason);
     for (i = 0; i < EMC_NO; i++)
         if (!isfinite(u[i]))
             return emc_fail(c, status, "%s at t = %.9g s: u = %g is not finite for these inputs", function, d->s.time, u[i]);
@@ -101,8 +145,7 @@ static fmi2Status du_along(emc_instance *c, const char *function, emc_data *d, c
 {
     double J[EMC_NO * EMC_NI], u[EMC_NO];
     int i, k;
-    if (compute_u(c, function, fmi2Error, d, u) != fmi2OK) return fmi2Error;
-    emc_ctrl_du(d->par, d->gain, d->in, J);
+    if (compute_u(c, function, fmi2Error, d, u, J) != fmi2OK) return fmi2Error;
     for (k = 0; k < EMC_NO; k++) {
         out[k] = 0.0;
         for (i = 0; i < EMC_NI; i++) out[k] += J[k * EMC_NI + i] * direction[i];
@@ -146,7 +189,7 @@ fmi2Status emc_get_reals(emc_instance *c, emc_common *s, const fmi2ValueReferenc
         case EMC_C_GAIN: value[i] = d->gain[v->index]; break;
         case EMC_C_INPUT: value[i] = d->in[v->index]; break;
         case EMC_C_OUTPUT:
-            if (!have_u && compute_u(c, "fmi2GetReal", fmi2Error, d, u) != fmi2OK) return fmi2Error;
+            if (!have_u && compute_u(c, "fmi2GetReal", fmi2Error, d, u, NULL) != fmi2OK) return fmi2Error;
             have_u = 1;
             value[i] = u[v->index];
             break;
@@ -252,7 +295,7 @@ fmi2Status emc_do_step(emc_instance *c, emc_common *s, double h)
     emc_data *d = (emc_data *)s;
     double u[EMC_NO];
     (void)h;
-    if (compute_u(c, "fmi2DoStep", fmi2Discard, d, u) != fmi2OK) return fmi2Discard;
+    if (compute_u(c, "fmi2DoStep", fmi2Discard, d, u, NULL) != fmi2OK) return fmi2Discard;
     memset(d->rate, 0, sizeof d->rate);     /* set again by the master for the next step */
     return fmi2OK;
 }

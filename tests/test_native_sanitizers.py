@@ -75,6 +75,7 @@ def test_instances_are_independent_across_threads(tmp_path: Path, name: str) -> 
     assert "ThreadSanitizer" not in run.stderr and "0 mismatches" in run.stderr
 
 
+@pytest.mark.slow                          # ~3 CPU-s: the quick set has no room left
 def test_reference_under_sanitizers(tmp_path: Path) -> None:
     """The Reference FMU's sources with tests/native/sanitize_reference.c under AddressSanitizer and
     UndefinedBehaviorSanitizer: both interfaces, bad kinds, types and arguments, the FMU-state pool, a corrupt

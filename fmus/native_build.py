@@ -7,13 +7,14 @@ values, ModelStructure and DefaultExperiment of its pythonfmu twin (the modelDes
 fmus/model_description.py from the twin's slave class, with `Native`: needsExecutionTool="false", the
 generator's name, <SourceFiles>), and carries
     sources/       emc_fmi2.c, emc_fmi2.h (fmus/native/: the framework), emc_plant.c, emc_framework.h (the
-                   plant kind), model.c, emc_model.h
-                   (components.c_codegen: the model functions), config.c, emc_config.h (from the twin's
-                   variables: the value references), the FMI 2.0 headers
+                   plant kind; emc_controller.c, emc_controller.h for a controller, emc_reference.c,
+                   emc_reference.h for the Reference), model.c, emc_model.h (components.c_codegen: the model
+                   functions), config.c, emc_config.h (from the twin's variables: the value references), the
+                   FMI 2.0 headers
     binaries/linux64/<identifier>.so   compiled from sources/ (-std=c99 -Wall -Wextra -Werror; no libpython)
     binaries/win64/<identifier>.dll    cross-compiled with mingw-w64 where it is installed (imports only
                                        KERNEL32.dll and msvcrt.dll)
-It provides Model Exchange only (docs/native-fmus.md says what is missing).
+Model Exchange and Co-Simulation in one binary (docs/native-fmus.md; it says what is missing).
 """
 from __future__ import annotations
 

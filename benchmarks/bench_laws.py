@@ -44,6 +44,9 @@ def load_before(rev: str):
     with tarfile.open(fileobj=BytesIO(archive)) as tar:
         tar.extractall(folder)
     (folder / "components").rename(folder / "components_before")
+    for module in (folder / "components_before").rglob("*.py"):       # generated modules import `components.`
+        text = module.read_text(encoding="utf-8")
+        module.write_text(text.replace("from components.", "from components_before."), encoding="utf-8")
     sys.path.insert(0, str(folder))
     return importlib.import_module("components_before.catalog")
 

@@ -66,6 +66,9 @@ class _Printer(StrPrinter):
             raise ValueError(f"function {name} cannot be generated")
         return f"_{name}({', '.join(self._print(a) for a in expr.args)})"
 
+    def _print_Abs(self, expr):
+        return f"_fabs({self._print(expr.args[0])})"        # analytic for a complex step (described.fabs)
+
     def _print_Float(self, expr):
         return repr(float(expr))
 
@@ -165,7 +168,7 @@ def _matrix_literal(A: sympy.Matrix, writer: _Writer) -> str:
 
 def _imports(body: str, one: bool) -> list[str]:
     """The run-time imports of a generated module: its base class, the dispatchers its text uses, the records."""
-    used = {n for n in FUNCTIONS if re.search(rf"\b_{n}\b", body)}
+    used = {n for n in (*FUNCTIONS, "fabs") if re.search(rf"\b_{n}\b", body)}
     names = ["DescribedOneDOF" if one else "DescribedPlant", *used, "make_device"]
     names = sorted(names, key=lambda n: (not n[0].isupper(), n.lower()))
     lines = [f"from components.described import {n} as _{n}" for n in names]
@@ -222,6 +225,8 @@ def module_source(desc: Description, source_name: str | None = None) -> str:
     lines.append(_setup(desc, w, one))
     lines.append("")
     lines += _model_functions(desc, w, one)
+    if one:
+        lines += [""] + _laws_source(desc, w)
     while lines[-1] == "":
         lines.pop()
     lines += ["", ""]
@@ -363,6 +368,79 @@ def _model_functions(desc: Description, w: _Writer, one: bool) -> list[str]:
         fn("phi", [phi], None, "phi(x_e) of Assumptions 2/4 (eq. assHereg).", xn, unpack_x, "x_e", "_x0")
         fn("grad_phi", [phi.diff(x) for x in xs], (e,), "grad phi(x_e).", xn, unpack_x, "x_e", "_x0")
         fn("hess_phi", [phi.diff(a, b) for a in xs for b in xs], (e, e), "Hessian of phi.", xn, unpack_x, "x_e", "_x0")
+    return out
+
+
+# ---- the control laws (components.laws), printed as Python -------------------------------------------------
+# the generated law functions' arguments: the state, the feasible reference (q*, p*, x_e*, x_e*') and the jet
+# (q*, q*', q*'', q*''') of a one-degree-of-freedom plant
+LAW_STATE = ("q", "p", "x_e")
+LAW_REFERENCE = ("q_star", "p_star", "x_e_star", "x_e_star_dot")
+LAW_JET = ("q_star", "q_star_dot", "q_star_ddot", "q_star_dddot")
+INFEASIBLE = "_self.infeasible_reference(q_star)"
+
+
+def _radicands(exprs: Sequence[sympy.Expr]) -> list[sympy.Expr]:
+    """The bases of the square roots in `exprs` (x_e* = s sqrt(2 F* / g) of Definition 1): real only when positive."""
+    found: list[sympy.Expr] = []
+    for e in exprs:
+        for a in sympy.preorder_traversal(e):
+            if a.is_Pow and a.exp.is_Rational and a.exp.q == 2 and a.base not in found:
+                found.append(a.base)
+    return found
+
+
+def _guarded_body(outputs: Sequence[sympy.Expr], temp: str, moving: set) -> tuple[list[str], list[str]]:
+    """cse'd lines of `outputs` in which every square root's radicand r_k that depends on the arguments `moving`
+    is computed first, as _r<k>, and checked (`if not _r<k>.real > 0: INFEASIBLE`, which raises); then the rest.
+    Returns (lines, outputs)."""
+    roots = [r for r in _radicands(outputs) if r.free_symbols & moving]
+    guards = {r: sympy.Symbol(f"_r{k}") for k, r in enumerate(roots)}
+    guarded = [sympy.sympify(e).xreplace(guards) for e in outputs]
+    temps, reduced = sympy.cse([*roots, *guarded], symbols=sympy.numbered_symbols(temp), order="none")
+    late = set(guards.values())
+    before, after = [], []
+    for t, v in temps:
+        if v.free_symbols & late:
+            late.add(t)
+            after.append(f"{t} = {_code(v)}")
+        else:
+            before.append(f"{t} = {_code(v)}")
+    checks = []
+    for g, e in zip(guards.values(), reduced):
+        checks += [f"{g} = {_code(e)}", f"if not {g}.real > 0:", f"    {INFEASIBLE}"]
+    return before + checks + after, [_code(e) for e in reduced[len(roots):]]
+
+
+def _law_names(desc: Description) -> dict:
+    """The description's q, p, x_e and reference symbols -> the generated functions' argument names."""
+    from .laws import _reference_symbols, jet_symbols
+    E = plant_expressions(desc)
+    names = dict(zip((E.q[0], E.p[0], E.x_e[0]), map(sympy.Symbol, LAW_STATE)))
+    names.update(zip((s[0] for s in _reference_symbols(desc)), map(sympy.Symbol, LAW_REFERENCE)))
+    names.update(zip(jet_symbols(desc), map(sympy.Symbol, LAW_JET)))
+    return names
+
+
+def _domain_check(q_min: str, q_max: str, indent: str) -> list[str]:
+    """q* inside the domain (check_state raises the DomainError), as OneDOFPlant.feasible_state needs."""
+    return [f"{indent}if not {q_min} < q_star.real < {q_max}:",
+            f"{indent}    _self.check_state(_np.array([q_star, 0.0, 0.0]))"]
+
+
+def _laws_source(desc: Description, w: _Writer) -> list[str]:
+    """feasible_scalar (Definition 1), printed from components.laws."""
+    from .laws import feasible_reference
+    names = _law_names(desc)
+    rename = {**names, **w.par}
+    jet, subs = feasible_reference(desc)
+    reference = [subs[s].xreplace(rename) for s in sorted(subs, key=list(names).index)]
+    lines, values = _guarded_body(reference, "_t", {sympy.Symbol(n) for n in LAW_JET})
+    out = [f"    def feasible_scalar(_self, {', '.join(LAW_JET)}):",
+           "        \"\"\"(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''): Definition 1 in closed form "
+           "(components.laws.feasible_reference).\"\"\"",
+           *_domain_check("_self.q_min", "_self.q_max", "        "), *[f"        {line}" for line in lines],
+           f"        return ({', '.join(values)})", ""]
     return out
 
 

@@ -7,6 +7,7 @@ import numpy as _np
 
 from components.described import DescribedOneDOF as _DescribedOneDOF
 from components.described import make_device as _make_device
+from components.described import sqrt as _sqrt
 from components.device import VariableSpec as _VariableSpec
 from components.parameters import Parameter as _Parameter
 
@@ -105,6 +106,17 @@ class Maglev(_DescribedOneDOF):
 
     def hess_phi(_self, x_e):
         return _np.array([[_self.d2phi(x_e[0])]])
+
+    def feasible_scalar(_self, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''): Definition 1 in closed form (components.laws.feasible_reference)."""
+        if not _self.q_min < q_star.real < _self.q_max:
+            _self.check_state(_np.array([q_star, 0.0, 0.0]))
+        _t1 = 1.0*_sqrt(_self._p_k)
+        _r0 = 2.0*_self._p_b + 2.0*q_star_ddot*_self._p_m + 2.0*q_star_dot*_self._p_R_m
+        if not _r0.real > 0:
+            _self.infeasible_reference(q_star)
+        _t0 = _sqrt(_r0)
+        return (q_star, q_star_dot*_self._p_m, _t0*_t1, _t1*(q_star_dddot*_self._p_m + q_star_ddot*_self._p_R_m)/_t0)
 
 
 GAIN_PARAMETERS: dict[str, _Parameter] = {}

@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as _np
 
 from components.described import DescribedOneDOF as _DescribedOneDOF
+from components.described import fabs as _fabs
 from components.described import make_device as _make_device
+from components.described import sqrt as _sqrt
 from components.device import VariableSpec as _VariableSpec
 from components.parameters import Parameter as _Parameter
 
@@ -84,6 +86,23 @@ class MEMS(_DescribedOneDOF):
         """Domain margins g_j(q) > 0."""
         (_q0,) = q
         return (_q0 + _self._p_c0,)
+
+    def feasible_scalar(_self, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''): Definition 1 in closed form (components.laws.feasible_reference)."""
+        if not _self.q_min < q_star.real < _self.q_max:
+            _self.check_state(_np.array([q_star, 0.0, 0.0]))
+        _t0 = q_star*_self._p_a1
+        _t1 = q_star_ddot*_self._p_m
+        _t2 = q_star_dot*_self._p_R_m
+        _t3 = _self._p_a2*q_star**3
+        _t5 = q_star + _self._p_c0
+        _t6 = _fabs(_t5)
+        _t7 = 1.0/_self._p_c1
+        _r0 = 2.0*_t0 + 2.0*_t1 + 2.0*_t2 + 2.0*_t3
+        if not _r0.real > 0:
+            _self.infeasible_reference(q_star)
+        _t4 = _sqrt(_r0)
+        return (q_star, q_star_dot*_self._p_m, 1.0*_t4*_t6*_sqrt(_self._p_c1), 1.0*_t5**4*_self._p_c1**((3/2))*(_t7*(q_star_dddot*_self._p_m + q_star_ddot*_self._p_R_m + q_star_dot*(_self._p_a1 + 3.0*_self._p_a2*q_star**2))/_t5**2 + 2.0*_t7*q_star_dot*(_t0 + _t1 + _t2 + _t3)/_t5**3)/(_t4*_t6))
 
 
 GAIN_PARAMETERS: dict[str, _Parameter] = {p.name: p for p in [

@@ -380,6 +380,32 @@ LAW_JET = ("q_star", "q_star_dot", "q_star_ddot", "q_star_dddot")
 INFEASIBLE = "_self.infeasible_reference(q_star)"
 
 
+def _hoist(exprs: Sequence[sympy.Expr], variables: set, prefix: str) -> tuple[list[tuple[sympy.Symbol, sympy.Expr]], list]:
+    """Loop-invariant code motion: every largest subexpression of `exprs` free of `variables` (the factors or
+    terms of a product or sum together) becomes a symbol prefix<k>; returns ([(symbol, expression)], exprs)."""
+    constants: dict[sympy.Expr, sympy.Symbol] = {}
+
+    def constant(e):
+        if e.is_Number or e.is_NumberSymbol:        # a literal stays; a parameter (_self._p_c) becomes a local
+            return e
+        if e not in constants:
+            constants[e] = sympy.Symbol(f"{prefix}{len(constants)}")
+        return constants[e]
+
+    def walk(e):
+        if not (e.free_symbols & variables):
+            return constant(e)
+        if e.is_Add or e.is_Mul:
+            fixed = [a for a in e.args if not (a.free_symbols & variables)]
+            moving = [walk(a) for a in e.args if a.free_symbols & variables]
+            return e.func(*([constant(e.func(*fixed))] if fixed else []), *moving)
+        if e.is_Atom:
+            return e
+        return e.func(*[walk(a) for a in e.args])
+    out = [walk(sympy.sympify(e)) for e in exprs]
+    return [(s, e) for e, s in constants.items()], out
+
+
 def _radicands(exprs: Sequence[sympy.Expr]) -> list[sympy.Expr]:
     """The bases of the square roots in `exprs` (x_e* = s sqrt(2 F* / g) of Definition 1): real only when positive."""
     found: list[sympy.Expr] = []
@@ -428,9 +454,24 @@ def _domain_check(q_min: str, q_max: str, indent: str) -> list[str]:
             f"{indent}    _self.check_state(_np.array([q_star, 0.0, 0.0]))"]
 
 
+def _factory(w: _Writer, head: str, doc: str, u: sympy.Expr, moving: Sequence[str], prologue: Sequence[str] = (),
+             inner_prologue: Sequence[str] = ()) -> list[str]:
+    """A method `head` that computes every part of u free of the arguments `moving` once and returns
+    _u(*moving), which computes the rest (square roots guarded: _guarded_body)."""
+    variables = {sympy.Symbol(n) for n in moving}
+    constants, (inner,) = _hoist([u], variables, "_c")
+    outer_lines, outer_values = w.body([e for _, e in constants], {}, None) if constants else ([], [])
+    lines, (value,) = _guarded_body([inner], "_s", variables)
+    return [f"    def {head}:", f'        """{doc}"""', *[f"        {line}" for line in outer_lines],
+            *[f"        {s} = {v}" for (s, _), v in zip(constants, outer_values)], *prologue, "",
+            f"        def _u({', '.join(moving)}):", *inner_prologue, *[f"            {line}" for line in lines],
+            f"            return {value}", "", "        return _u", ""]
+
+
 def _laws_source(desc: Description, w: _Writer) -> list[str]:
-    """feasible_scalar (Definition 1), printed from components.laws."""
-    from .laws import feasible_reference
+    """feasible_scalar (Definition 1) and, per law family, the factories law_<family>_at (a constant reference:
+    regulation) and law_<family>_tracking (along the reference's jet), printed from components.laws."""
+    from .laws import feasible_reference, law, tracking_law
     names = _law_names(desc)
     rename = {**names, **w.par}
     jet, subs = feasible_reference(desc)
@@ -441,6 +482,18 @@ def _laws_source(desc: Description, w: _Writer) -> list[str]:
            "(components.laws.feasible_reference).\"\"\"",
            *_domain_check("_self.q_min", "_self.q_max", "        "), *[f"        {line}" for line in lines],
            f"        return ({', '.join(values)})", ""]
+    for family in ["c1"] + (["u2"] if desc.Gamma is not None else []):
+        stated = law(desc, family)
+        gains = ", ".join(s.name for s in stated.gains)
+        out += _factory(w, f"law_{family}_at(_self, {gains}, {', '.join(LAW_REFERENCE)})",
+                        f"u(q, p, x_e) of {stated.equations} at a constant reference (q*, p*, x_e*, x_e*'), "
+                        "from components.laws.law.", stated.u[0].xreplace(rename), LAW_STATE)
+        stated = tracking_law(desc, family)
+        out += _factory(w, f"law_{family}_tracking(_self, {gains})",
+                        f"u(q, p, x_e, q*, q*', q*'', q*''') of {stated.equations}, from components.laws.tracking_law.",
+                        stated.u[0].xreplace(rename), LAW_STATE + LAW_JET,
+                        ["        _q_min, _q_max = _self.q_min, _self.q_max"],
+                        _domain_check("_q_min", "_q_max", "            "))
     return out
 
 

@@ -1,18 +1,27 @@
-"""Definition 1 stated once (components.laws.feasible_reference), printed as Python (components.codegen: the
-generated feasible_scalar), against the closed form written by hand (tests/hand_written_laws.py, components/
-before it was generated): at random parameters and reference jets of the paper's MEMS and maglev, the
-feasible reference and its complex-step derivative agree to 1e-12 relative; an infeasible reference is refused
-by both."""
+"""The control laws stated once (components.laws), printed as Python (components.codegen: the generated
+feasible_scalar, law_<family>_at, law_<family>_tracking that Controller.scalars evaluates), against the laws
+written by hand in scalars (tests/hand_written_laws.py, components/ before they were generated).
+
+At random parameters, gains, states and reference jets, for the paper's MEMS and maglev and the one-DOF
+example devices: u, its complex-step derivative (what fmi2GetDirectionalDerivative returns) and the
+feasible reference (Definition 1) agree to 1e-12 relative; an infeasible reference is refused by both."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from components import maglev, mems
+from components import codegen, maglev, mems
+from components.description import load
+from components.proposition1 import Proposition1
+from components.proposition2 import Proposition2
+from components.theorem2 import Theorem2
 from components.theorem3 import Theorem3
-from tests.hand_written_laws import feasible_scalar
+from tests.hand_written_laws import feasible_scalar, u_scalar
 
 RTOL = 1e-12
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def close(a, b, rtol=RTOL) -> bool:
@@ -33,6 +42,18 @@ def _maglev(rng):
     return plant, 0.0025, jet, state
 
 
+def _designs(rng, plant, q_d):
+    """The four designs where the plant allows them, with random gains that satisfy their conditions."""
+    R_e_bar = float(plant.R_e[0, 0]) * rng.uniform(0.5, 3.0)
+    D_max = 2.0 * np.sqrt(float(plant.R_m[0, 0]) * R_e_bar)           # eq. (pHcondition), n = 1
+    out = [Proposition1(plant, q_d, R_e_bar, D_d=rng.uniform(-0.9, 0.9) * D_max, W=rng.uniform(0.5, 2.0)),
+           Theorem2(plant, R_e_bar, D_d=rng.normal(0, 1.0), W=rng.uniform(0.5, 2.0))]
+    if getattr(plant, "Gamma", None) is not None:
+        out += [Proposition2(plant, q_d, R_e_bar, k_c=rng.uniform(5, 30), D_d=rng.uniform(-0.9, 0.9) * D_max),
+                Theorem3(plant, R_e_bar, k_c=rng.uniform(5, 30), D_d=rng.normal(0, 1.0))]
+    return out
+
+
 @pytest.mark.parametrize("make", [_mems, _maglev], ids=["MEMS", "Maglev"])
 def test_generated_feasible_reference_equals_the_hand_written(make):
     rng = np.random.default_rng(32)
@@ -44,6 +65,24 @@ def test_generated_feasible_reference_equals_the_hand_written(make):
         z = [complex(x, 1e-30 * d) for x, d in zip(jet, v)]
         for a, b in zip(plant.feasible_scalar(*z), feasible_scalar(plant, *z)):
             assert close(a.imag, b.imag, 1e-11), (plant.name, jet)
+
+
+@pytest.mark.parametrize("make", [_mems, _maglev], ids=["MEMS", "Maglev"])
+def test_generated_laws_equal_the_hand_written(make):
+    rng = np.random.default_rng(32)
+    for _ in range(20):
+        plant, q_d, jet, eta = make(rng)
+        for controller in _designs(rng, plant, q_d):
+            assert controller.scalars is not None                      # the generated law, not u_matrix
+            ref = jet if controller.tracking else None
+            u, truth = controller.u_scalar(*eta, ref), u_scalar(controller, *eta, ref)
+            assert isinstance(u, float) and close(u, truth), (controller.name, u, truth)
+            x = [*eta, *(jet if controller.tracking else ())]
+            v = rng.normal(size=len(x)) * np.abs(x)
+            h = 1e-30
+            z = [complex(xi, h * vi) for xi, vi in zip(x, v)]
+            slope = u_scalar(controller, *z[:3], tuple(z[3:]) if controller.tracking else None).imag / h
+            assert close(controller.u_derivative(x, list(v)), slope, 1e-11), controller.name
 
 
 def test_infeasible_and_outside_references_are_refused_as_before():
@@ -59,3 +98,19 @@ def test_infeasible_and_outside_references_are_refused_as_before():
                  lambda: feasible_scalar(plant, *outside)):
         with pytest.raises(ValueError, match="violates q < c"):
             call()
+
+
+@pytest.mark.parametrize("example", ["parallel_plate", "solenoid"])
+def test_generated_laws_of_example_devices(example):
+    """Descriptions other than the paper's: the laws printed from their generated modules."""
+    desc = load(ROOT / "examples" / example / f"{example}.toml")
+    device = codegen.device(desc)
+    plant = device.plant()
+    rng = np.random.default_rng(5)
+    q0 = float(plant.equilibrium(np.array([0.3 * (plant.q_max if np.isfinite(plant.q_max) else 1e-3)]))[0])
+    for controller in _designs(rng, plant, q0):
+        for _ in range(5):
+            eta = plant.equilibrium(np.array([q0])) * rng.uniform(0.8, 1.2, size=3) + rng.normal(0, 1e-9, size=3)
+            jet = (q0, 0.0, 0.0, 0.0) if controller.tracking else None
+            u, truth = controller.u_scalar(*eta, jet), u_scalar(controller, *eta, jet)
+            assert close(u, truth), (example, controller.name, u, truth)

@@ -225,8 +225,7 @@ def module_source(desc: Description, source_name: str | None = None) -> str:
     lines.append(_setup(desc, w, one))
     lines.append("")
     lines += _model_functions(desc, w, one)
-    if one:
-        lines += [""] + _laws_source(desc, w)
+    lines += [""] + (_laws_source(desc, w) if one else _vector_laws_source(desc, w))
     while lines[-1] == "":
         lines.pop()
     lines += ["", ""]
@@ -494,6 +493,58 @@ def _laws_source(desc: Description, w: _Writer) -> list[str]:
                         stated.u[0].xreplace(rename), LAW_STATE + LAW_JET,
                         ["        _q_min, _q_max = _self.q_min, _self.q_max"],
                         _domain_check("_q_min", "_q_max", "            "))
+    return out
+
+
+def _vector_factory(w: _Writer, head: str, doc: str, u: Sequence[sympy.Expr], setup: Sequence[str], args: str,
+                    unpack: Sequence[str], moving: set) -> list[str]:
+    """A method `head` that computes every part of the entries of u free of `moving` once and returns
+    _u(args), which computes the rest and returns u as an array (n_e)."""
+    constants, inner = _hoist(u, moving, "_c")
+    outer_lines, outer_values = w.body([e for _, e in constants], {}, None) if constants else ([], [])
+    temps, reduced = sympy.cse(inner, symbols=sympy.numbered_symbols("_s"), order="none")
+    return [f"    def {head}:", f'        """{doc}"""', *[f"        {line}" for line in setup],
+            *[f"        {line}" for line in outer_lines],
+            *[f"        {s} = {v}" for (s, _), v in zip(constants, outer_values)], "",
+            f"        def _u({args}):", *[f"            {line}" for line in unpack],
+            *[f"            {t} = {_code(v)}" for t, v in temps],
+            f"            return _np.array([{', '.join(_code(e) for e in reduced)}])", "", "        return _u", ""]
+
+
+def _unpack(names: Sequence[sympy.Symbol], source: str) -> str:
+    return f"({', '.join(s.name for s in names)},) = {source}"
+
+
+def _vector_laws_source(desc: Description, w: _Writer) -> list[str]:
+    """Per law family of components.laws, for a plant of any n_m, n_e (n_e <= 3: the law's symbolic inverses):
+    law_<family>_at(R_e_bar, D_d, W or k_c, eta*, x_e*') -> u(eta) (regulation: all but the state once) and
+    law_<family>_ref(R_e_bar, D_d, W or k_c) -> u(eta, eta*, x_e*') (tracking: the feasible reference of
+    Definition 1 given, DescribedPlant.feasible_state)."""
+    from .laws import _reference_symbols, law
+    if desc.n_e > 3:
+        return []
+    E = plant_expressions(desc)
+    n, e = 2 * desc.n_m + desc.n_e, desc.n_e
+    q_s, p_s, x_s, xd_s = _reference_symbols(desc)
+    state = [sympy.Symbol(f"_e{i}") for i in range(n)]
+    star = [sympy.Symbol(f"_y{i}") for i in range(n)]
+    rate = [sympy.Symbol(f"_yd{i}") for i in range(e)]
+    rename = {**dict(zip(E.eta, state)), **dict(zip((*q_s, *p_s, *x_s), star)), **dict(zip(xd_s, rate)), **w.par}
+    unpack_state = _unpack(state, "_np.asarray(eta).tolist()")
+    unpack_star = [_unpack(star, "_np.ravel(eta_star).tolist()"), _unpack(rate, "_np.ravel(x_e_star_dot).tolist()")]
+    out: list[str] = []
+    for family in ["c1"] + (["u2"] if desc.Gamma is not None else []):
+        stated = law(desc, family)
+        gains = [sympy.Symbol(f"_g{i}") for i in range(len(stated.gains))]
+        u = [x.xreplace({**rename, **dict(zip(stated.gains, gains))}) for x in stated.u]
+        third = "W" if family == "c1" else "k_c"
+        setup = [_unpack(gains, f"(*_np.ravel(R_e_bar).tolist(), *_np.ravel(D_d).tolist(), *_np.ravel({third}).tolist())")]
+        out += _vector_factory(w, f"law_{family}_at(_self, R_e_bar, D_d, {third}, eta_star, x_e_star_dot)",
+                               f"u(eta) of {stated.equations} at a constant feasible reference (eta*, x_e*'), from "
+                               "components.laws.law.", u, setup + unpack_star, "eta", [unpack_state], set(state))
+        out += _vector_factory(w, f"law_{family}_ref(_self, R_e_bar, D_d, {third})",
+                               f"u(eta, eta*, x_e*') of {stated.equations}, from components.laws.law.", u, setup,
+                               "eta, eta_star, x_e_star_dot", [unpack_state, *unpack_star], {*state, *star, *rate})
     return out
 
 

@@ -74,15 +74,25 @@ class Controller:
         """The law in scalars for a described one-degree-of-freedom plant: the function its generated module
         prints from components.laws (components.codegen; no numpy on the per-step path), u = scalars(q, p, x_e)
         for regulation and u = scalars(q, p, x_e, q*, dq*/dt, d2q*/dt2, d3q*/dt3) for tracking; None for any
-        other plant (u_matrix)."""
+        other plant."""
+        self.vector_law: Callable | None = None
+        """The law of a described plant of any n (components.laws, printed by components.codegen): u(eta) for
+        regulation, u(eta, eta*, x_e*') for tracking (eta*, x_e*' of Definition 1, EMPlant.feasible_state);
+        None for plants written as Python classes (u_matrix)."""
 
     def bind_law(self, family: str, gain, reference: np.ndarray | None = None) -> None:
-        """Set `scalars` from the plant's generated law of `family` ("c1" or "u2", components.laws) with the
-        gains R_e_bar, D_d and `gain` (W or K_c), at the constant reference eta_d = `reference` (regulation:
-        p* = 0, x_e*' = 0) or along the reference's jet (tracking). A plant without generated laws (any n, or a
-        plant written as a Python class) keeps u_matrix."""
+        """Set `scalars` (a described one-DOF plant) or `vector_law` (a described plant of any other n) from the
+        plant's generated law of `family` ("c1" or "u2", components.laws) with the gains R_e_bar, D_d and `gain`
+        (W or K_c), at the constant reference eta_d = `reference` (regulation: p* = 0, x_e*' = 0) or along the
+        reference (tracking). A plant written as a Python class has no generated laws: it keeps u_matrix."""
+        if not isinstance(self.plant, OneDOFPlant):
+            factory = getattr(self.plant, f"law_{family}_{'ref' if self.tracking else 'at'}", None)
+            if factory is not None:                          # a described plant of any n
+                self.vector_law = (factory(self.R_e_bar, self.D_d, gain) if self.tracking else
+                                   factory(self.R_e_bar, self.D_d, gain, reference, np.zeros(self.plant.n_e)))
+            return
         factory = getattr(self.plant, f"law_{family}_{'tracking' if self.tracking else 'at'}", None)
-        if factory is None or not isinstance(self.plant, OneDOFPlant):
+        if factory is None:
             return
         gains = (float(self.R_e_bar[0, 0]), float(self.D_d[0, 0]), float(np.asarray(gain)[0, 0]))
         if self.tracking:
@@ -101,6 +111,11 @@ class Controller:
         if self.scalars is not None:
             jet_values = tuple(v[0] for v in (jet.q, jet.qd, jet.qdd, jet.qddd)) if self.tracking else ()
             return np.array([self.scalars(eta[0], eta[1], eta[2], *jet_values)])
+        if self.vector_law is not None:
+            if self.tracking:
+                eta_s, x_e_s_dot = self.plant.feasible_state(jet)
+                return self.vector_law(eta, eta_s, x_e_s_dot)
+            return self.vector_law(eta)
         return self.u_matrix(eta, jet)
 
     def u_matrix(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
@@ -139,7 +154,7 @@ class Controller:
             return self.scalars(*z).imag / h
         m = self.plant.n_m
         jet = Jet(*np.reshape(np.array(z[n:]), (4, m))) if self.tracking else None
-        return np.imag(self.u_matrix(np.array(z[:n]), jet)) / h
+        return np.imag(self.u(np.array(z[:n]), jet)) / h
 
     def H_d(self, eta: np.ndarray, jet: Jet | None = None):
         """Desired Hamiltonian; written independently of u, so grad H_d can check the matching."""

@@ -14,6 +14,7 @@ import pytest
 
 from components import codegen, maglev, mems
 from components.description import load
+from components.ph_plant import Jet
 from components.proposition1 import Proposition1
 from components.proposition2 import Proposition2
 from components.theorem2 import Theorem2
@@ -114,3 +115,43 @@ def test_generated_laws_of_example_devices(example):
             jet = (q0, 0.0, 0.0, 0.0) if controller.tracking else None
             u, truth = controller.u_scalar(*eta, jet), u_scalar(controller, *eta, jet)
             assert close(u, truth), (example, controller.name, u, truth)
+
+
+def _reference_jet(plant, rng, q_d):
+    m = plant.n_m
+    return Jet(np.asarray(q_d, dtype=float), rng.normal(0, 1e-4, m), rng.normal(0, 1e-3, m), rng.normal(0, 1e-2, m))
+
+
+@pytest.mark.parametrize("example", ["levitated_bar", "two_magnet_ball"])
+def test_generated_laws_of_any_n_equal_the_matrix_laws(example):
+    """Plants with n > 1 (and their designs' default gains): the law printed from components.laws
+    (Controller.vector_law) against the matrix law written with numpy (u_matrix), at random states near the
+    target and random reference jets: u to 1e-12 and its complex-step derivative to 1e-11."""
+    desc = load(ROOT / "examples" / example / f"{example}.toml")
+    device = codegen.device(desc)
+    rng = np.random.default_rng(3)
+    built = {}
+    for design in device.designs:
+        try:
+            built[design] = device.controller(design, {})
+        except ValueError:                                # the defaults violate this design's conditions
+            continue
+    q_d = next(c.target(None) for c in built.values() if not c.tracking)[:device.n_m]
+    assert len(built) >= 3, list(built)
+    for design, controller in built.items():
+        assert controller.scalars is None and controller.vector_law is not None, design
+        n = controller.plant.n
+        for _ in range(5):
+            jet = _reference_jet(controller.plant, rng, q_d) if controller.tracking else None
+            target = controller.target(jet)
+            eta = target * rng.uniform(0.9, 1.1, n) + rng.normal(0, 1e-6, n) * np.max(np.abs(target))
+            u, truth = controller.u(eta, jet), controller.u_matrix(eta, jet)
+            assert np.all(np.abs(u - truth) <= RTOL * np.max(np.abs(truth))), (example, design, u, truth)
+            x = [*eta, *(np.concatenate([jet.q, jet.qd, jet.qdd, jet.qddd]) if jet is not None else [])]
+            v = rng.normal(size=len(x)) * np.abs(x)
+            h = 1e-30
+            z = np.array([complex(xi, h * vi) for xi, vi in zip(x, v)])
+            zjet = Jet(*np.reshape(z[n:], (4, -1))) if jet is not None else None
+            slope = np.imag(controller.u_matrix(z[:n], zjet)) / h
+            d = controller.u_derivative(x, list(v))
+            assert np.all(np.abs(d - slope) <= 1e-11 * np.max(np.abs(slope))), (example, design, d, slope)

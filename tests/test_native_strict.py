@@ -32,7 +32,7 @@ from fmpy.fmi2 import (
 )
 from fmpy.logging import addLoggerProxy
 
-pytestmark = [pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc"), pytest.mark.slow]
+needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 OK, WARNING, ERROR = 0, 1, 3
 K_E = "K_e = R_e_bar - R_e"
 HURWITZ = "Theorem 1 (i): F_d Hurwitz"
@@ -157,6 +157,50 @@ def _compare(native: Path, twin: Path, cases) -> None:
             assert _violated(_reason(text)) == violated, (where, text)
 
 
+@pytest.mark.slow                         # ~2 CPU-s of sympy: the quick set has no room left
+@pytest.mark.parametrize("identifier, jet", [("MEMS_Proposition1", None), ("MEMS_Theorem2", (2e-5, 1e-4, -0.5, 3.0)),
+                                             ("Maglev_Proposition2", None), ("Maglev_Theorem3", (0.002, 0.01, 0.3, -2.0))])
+def test_design_matrices_are_the_numpy_ones(identifier: str, jet) -> None:
+    """components.laws.design_matrices (what the C decides) at the twin's default gains equal the hand-written
+    numpy forms the twin decides: Controller.hess_H_d(target), closed_loop.F_d, K_e, plant.hess_phi(x_e*),
+    plant.hess_H(eta_d)[q, q], R_m (to 1e-12 relative)."""
+    import numpy as np
+    import sympy
+
+    from components.description import load
+    from components.laws import design_law, design_matrices
+    from components.ph_plant import Jet
+    from fmus.native_build import PAPER_PLANTS, _twin
+
+    slave = _twin(identifier)
+    plant_name, _, design = identifier.partition("_")
+    desc = load(PAPER_PLANTS[plant_name])
+    gains = tuple(p.name for p in slave.device.designs[design].gains.values())
+    D = design_matrices(desc, design, gains)
+    L = design_law(desc, design, gains)
+    controller = slave.make_controller()
+    values = {s: slave.values[s.name] for s in desc.parameter_symbols}
+    values.update({s: slave.values[s.name] for s in L.gains})
+    target_jet = None if jet is None else Jet(*(np.array([v]) for v in jet))
+    if jet is not None:
+        values.update(dict(zip(L.inputs[3:], jet)))
+    eta = controller.target(target_jet)
+    m = desc.n_m
+    truths = {"hess_H_d": controller.hess_H_d(eta, target_jet), "F_d": controller.F_d(), "K_e": controller.K_e,
+              "hess_phi": None if desc.phi is None else controller.plant.hess_phi(eta[2 * m:]),
+              "hess_q_H": controller.plant.hess_H(eta)[:m, :m], "R_m": controller.plant.R_m}
+    asked = 0
+    for field, truth in truths.items():
+        M = getattr(D, field)
+        if M is None:
+            continue
+        got = np.array(sympy.Matrix(M).xreplace(values).evalf(), dtype=float)
+        want = 0.5 * (truth + truth.T) if field in ("hess_H_d",) else truth
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want)), err_msg=field)
+        asked += 1
+    assert asked == {"Proposition1": 4, "Theorem2": 3, "Proposition2": 3, "Theorem3": 3}[design]
+
+
 @pytest.fixture(scope="module")
 def paper_controllers(tmp_path_factory) -> dict[str, Path]:
     from fmus.native_build import build_native_controller
@@ -164,11 +208,15 @@ def paper_controllers(tmp_path_factory) -> dict[str, Path]:
     return {name: build_native_controller(name, dest) for name in PAPER_CASES}
 
 
+@needs_gcc
+@pytest.mark.slow                         # 4 native builds and 26 pairs of initializations: ~9 CPU-s
 @pytest.mark.parametrize("name", PAPER_CASES)
 def test_paper_controllers_check_as_their_twins(paper_controllers, fmus, name) -> None:
     _compare(paper_controllers[name], fmus[name], PAPER_CASES[name])
 
 
+@needs_gcc
+@pytest.mark.slow                         # 6 native and 6 twin builds: ~14 CPU-s
 @pytest.mark.parametrize("example, designs", [("solenoid", ["Proposition1", "Theorem2"]),
                                               ("parallel_plate", ["Proposition1", "Proposition2", "Theorem2",
                                                                   "Theorem3"])])

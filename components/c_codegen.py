@@ -279,6 +279,12 @@ def _design_check_rows(design: str) -> list[tuple[str, str, int, list[tuple[str,
     return rows
 
 
+def design_checks_available(desc: Description) -> bool:
+    """Whether `design_checks_c_source` serves the controllers of `desc` (components.laws.design_matrices: the
+    one-degree-of-freedom reference in closed form); emc_config.h's EMC_DESIGN_CHECKED."""
+    return desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass
+
+
 def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequence) -> str:
     """C99 of the design checks a controller FMU makes at fmi2ExitInitializationMode (strict = 0: warned,
     strict = 1: refused; components.certificates.design_checks, fmus/controller.py), for emc_controller.c:

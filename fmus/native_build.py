@@ -30,7 +30,7 @@ from typing import Sequence
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import tostring
 
-from components.c_codegen import MODEL_HEADER, model_c_source
+from components.c_codegen import MODEL_HEADER, design_checks_available, model_c_source
 from components.description import Description, load
 
 from .model_description import Native, model_description
@@ -267,6 +267,8 @@ def controller_config(slave, desc: Description, design, guid: str) -> tuple[str,
         f"#define EMC_N_CONTROLLER_INPUTS {len(inputs)}",
         f"#define EMC_N_VARIABLES {len(rows)}",
         f"#define EMC_N_STATES {2 * desc.n_m + desc.n_e}",
+        # controller.c has emc_ctrl_design (components.c_codegen.design_checks_c_source): strict as the twin's
+        f"#define EMC_DESIGN_CHECKED {int(design_checks_available(desc))}",
         f"#define EMC_TRACKING {int(design.tracking)}",
         f"#define EMC_STRICT_PH {STRICT_PH[design.name]}",
         f"#define EMC_ASK_K_C {int(family == 'u2')}",

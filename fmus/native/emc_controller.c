@@ -158,6 +158,7 @@ static fmi2Status du_along(emc_instance *c, const char *function, emc_data *d, c
 }
 
 /* ---- the design's conditions (components.certificates.design_checks) ------------------------------- */
+#if EMC_DESIGN_CHECKED                      /* controller.c has emc_ctrl_design (emc_config.h) */
 #define EMC_DN EMC_N_STATES
 #define EMC_JACOBI_SWEEPS 64                /* cyclic Jacobi: converges in < 10 sweeps for n <= 20; the bound */
 #define EMC_ROOT_ITERATIONS 500             /* Durand-Kerner: the bound on its iterations */
@@ -401,6 +402,16 @@ static fmi2Status check_conditions(emc_instance *c, const char *function, const 
              EMC_DESIGN_NAME, text);
     return fmi2OK;
 }
+#else
+/* no emc_ctrl_design for this controller: strict = 1 is refused (use the pythonfmu twin) */
+static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d)
+{
+    if (d->strict == 1)
+        return emc_fail(c, fmi2Error, "%s: strict = 1 (the design checks of components.certificates) is not provided "
+                        "by this native controller; use its pythonfmu twin", function);
+    return fmi2OK;
+}
+#endif
 
 /* ---- variables ---------------------------------------------------------------------------------- */
 emc_role emc_role_of(fmi2ValueReference vr)

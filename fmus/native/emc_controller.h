@@ -2,7 +2,8 @@
  *
  * emc_config.h (fmus/native_build.py): EMC_MODEL_IDENTIFIER, EMC_GUID, EMC_N_PARAMETERS (the plant's),
  * EMC_N_GAINS, EMC_N_CONTROLLER_INPUTS (q, p, x_e, then the jet when tracking), EMC_N_VARIABLES,
- * EMC_N_STATES (n = 2 n_m + n_e), EMC_TRACKING, EMC_STRICT_PH (1: eq. pHcondition strictly, Proposition 1; 0: weakly, Proposition 2;
+ * EMC_N_STATES (n = 2 n_m + n_e), EMC_DESIGN_CHECKED (1: controller.c has emc_ctrl_design),
+ * EMC_TRACKING, EMC_STRICT_PH (1: eq. pHcondition strictly, Proposition 1; 0: weakly, Proposition 2;
  * -1: not asked, the theorems), EMC_ASK_K_C (1: k_c > 0 is a condition);
  * controller.c (components.c_codegen.controller_c_source): the law and its Jacobian; model.c: the plant's
  * parameter conditions (emc_check_parameters).

@@ -282,7 +282,7 @@ def _design_check_rows(design: str) -> list[tuple[str, str, int, list[tuple[str,
 def design_checks_available(desc: Description) -> bool:
     """Whether `design_checks_c_source` serves the controllers of `desc` (components.laws.design_matrices: the
     one-degree-of-freedom reference in closed form); emc_config.h's EMC_DESIGN_CHECKED."""
-    return desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass
+    return desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass     # n = 3 <= EMC_DESIGN_MAX_ORDER (emc_design.h)
 
 
 def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequence) -> str:
@@ -311,6 +311,8 @@ def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequ
                 offsets[field] = (len(values), M.shape[0])
                 values += list(M)
     n = 2 * desc.n_m + desc.n_e
+    if n > 16:                                      # EMC_DESIGN_MAX_ORDER (fmus/native/emc_design.h)
+        raise ValueError(f"{desc.source}: n = {n} > 16: the native design checks take matrices up to order 16")
     if len(values) > 6 * n * n:
         raise ValueError(f"{desc.source}: {design}'s design matrices exceed emc_controller.c's buffer")
     table = []

@@ -231,8 +231,8 @@ def _package(slave, framework: tuple[str, ...], generated: dict[str, str], sourc
 
 
 # ---- controllers ------------------------------------------------------------------------------------
-CONTROLLER_FRAMEWORK = (*COMMON, "emc_controller.c", "emc_controller.h")
-CONTROLLER_SOURCE_FILES = ("emc_fmi2.c", "emc_controller.c", "controller.c", "model.c", "config.c")
+CONTROLLER_FRAMEWORK = (*COMMON, "emc_controller.c", "emc_controller.h", "emc_design.c", "emc_design.h")
+CONTROLLER_SOURCE_FILES = ("emc_fmi2.c", "emc_controller.c", "emc_design.c", "controller.c", "model.c", "config.c")
 STRICT_PH = {"Proposition1": 1, "Proposition2": 0, "Theorem2": -1, "Theorem3": -1}   # eq. (pHcondition)
 
 

@@ -29,6 +29,7 @@ from fmpy.fmi2 import (
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
     free,
+    printLogMessage,
 )
 from fmpy.logging import addLoggerProxy
 
@@ -79,6 +80,21 @@ EXAMPLE_CASES = {
 }
 
 
+# fmpy's logger proxy (fmpy.logging) keeps the logger it formats for in one global of its C library, for every
+# FMU of the process: each Logged's logger stays alive here, and the module's end gives fmpy's own back
+# (printLogMessage), or later FMUs of the session would call a freed callback (measured: a segmentation fault).
+_LOGGERS: list = []
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fmpy_logger_given_back():
+    yield
+    mine = fmi2CallbackFunctions()
+    _LOGGERS.append(fmi2CallbackLoggerTYPE(printLogMessage))
+    mine.logger = _LOGGERS[-1]
+    addLoggerProxy(byref(mine))
+
+
 class Logged:
     """An FMU2Slave with its log captured through fmpy's proxy, which formats the native FMU's variadic
     arguments (the framework logs "%s: %s")."""
@@ -90,6 +106,7 @@ class Logged:
         self.callbacks = fmi2CallbackFunctions()
         self.callbacks.logger = fmi2CallbackLoggerTYPE(
             lambda env, inst, status, category, message: self.messages.append((status, message.decode())))
+        _LOGGERS.append(self.callbacks.logger)
         self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         addLoggerProxy(byref(self.callbacks))
@@ -230,3 +247,53 @@ def test_example_controllers_check_as_their_twins(tmp_path: Path, example: str, 
     assert controllers == sorted(n for n in EXAMPLE_CASES if n.startswith(next(iter(natives)) + "_"))
     for name in controllers:
         _compare(natives[name], twins[name], EXAMPLE_CASES[name])
+
+
+@needs_gcc
+@pytest.mark.slow                         # a C compile: the quick set has no room left
+def test_design_linear_algebra_against_numpy(tmp_path: Path) -> None:
+    """emc_design.c (tests/native/design_numerics.c) at random matrices of orders 1 to 16 against numpy: the smallest
+    eigenvalue of the symmetric part (Jacobi) to 1e-13 |A|; the scaled definiteness's verdict and number as
+    components.certificates.definiteness, also with entries spanning 40 orders of magnitude (a charge device's
+    Hessian); Routh-Hurwitz's verdict as numpy's eigenvalues with the abscissa 0.05 to 1 from the axis; the printed
+    abscissa (Durand-Kerner) to 1e-8 |A|; an F_d with roots on the imaginary axis is not Hurwitz."""
+    import subprocess
+
+    import numpy as np
+
+    from components.certificates import FAILS, HOLDS, INCONCLUSIVE, definiteness
+    native = Path(__file__).resolve().parents[1] / "fmus" / "native"
+    host = tmp_path / "design_numerics"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-I", str(native),
+                    str(Path(__file__).resolve().parent / "native" / "design_numerics.c"), str(native / "emc_design.c"),
+                    "-o", str(host), "-lm"], check=True, capture_output=True, text=True)
+    rng = np.random.default_rng(32)
+    general, symmetric = [], []
+    for n in range(1, 17):
+        for _ in range(6):
+            A = rng.normal(size=(n, n))
+            abscissa = rng.choice([-1, 1]) * rng.uniform(0.05, 1.0)
+            general.append(A - (np.max(np.linalg.eigvals(A).real) - abscissa) * np.eye(n))
+            Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+            lam = rng.uniform(0.1, 2.0, n) * np.where(rng.uniform(size=n) < 0.3, -1.0, 1.0)
+            scale = np.diag(10.0 ** rng.uniform(-20, 20, n))
+            symmetric.append(scale @ (Q * lam) @ Q.T @ scale)
+    on_axis = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])        # F_d of R_m = 0, Gamma = 0
+    matrices = general + symmetric + [on_axis]
+    text = "".join(f"{len(A)} " + " ".join(repr(float(x)) for x in A.ravel()) + "\n" for A in matrices)
+    run = subprocess.run([str(host)], input=text, capture_output=True, text=True, check=True, timeout=60)
+    rows = [line.split() for line in run.stdout.splitlines()]
+    assert len(rows) == len(matrices)
+    verdicts = {HOLDS: 0, FAILS: 1, INCONCLUSIVE: 2}
+    for A, (min_eig, verdict, number, hurwitz, shift, abscissa) in zip(general, rows):
+        size = np.linalg.norm(A, 2)
+        assert abs(float(min_eig) - np.min(np.linalg.eigvalsh(0.5 * (A + A.T)))) <= 1e-13 * size
+        want = np.max(np.linalg.eigvals(A).real)
+        assert int(hurwitz) == int(want < 0), (A, want)
+        assert abs(float(abscissa) - want) <= 1e-8 * size, (len(A), abscissa, want)
+        assert 0 < float(shift) < 1e-12 * max(1.0, np.max(np.abs(A)))
+    for A, (_, verdict, number, *_) in zip(symmetric, rows[len(general):]):
+        want_verdict, want_number, _ = definiteness(A)
+        assert int(verdict) == verdicts[want_verdict], (A, want_verdict)
+        assert float(number) == pytest.approx(want_number, rel=1e-10, abs=1e-12)
+    assert rows[-1][3] == "0" and abs(float(rows[-1][5])) < 1e-12

@@ -7,7 +7,8 @@ values, ModelStructure and DefaultExperiment of its pythonfmu twin (the modelDes
 fmus/model_description.py from the twin's slave class, with `Native`: needsExecutionTool="false", the
 generator's name, <SourceFiles>), and carries
     sources/       emc_fmi2.c, emc_fmi2.h (fmus/native/: the framework), emc_plant.c, emc_framework.h (the
-                   plant kind; emc_controller.c, emc_controller.h for a controller, emc_reference.c,
+                   plant kind; emc_controller.c, emc_controller.h, emc_design.c, emc_design.h for a controller;
+                   emc_reference.c,
                    emc_reference.h for the Reference), model.c, emc_model.h (components.c_codegen: the model
                    functions), config.c, emc_config.h (from the twin's variables: the value references), the
                    FMI 2.0 headers

@@ -206,3 +206,121 @@ def design_law(desc: Description, design: str, gain_names: tuple[str, ...]) -> D
         R_m - values["D_d"] ** 2 / (4 * values["R_e_bar"]),
         (sympy.oo if margin is None else margin.xreplace({q: jet[0]})).xreplace(reference),
         ratio.xreplace(reference))
+
+
+# ---- the design's conditions (components.certificates.design_checks), stated beside the laws --------------
+# In the symbols of `law`: the state eta, the gains (R_e_bar, D_d, W or k_c) and the feasible reference
+# (q*, p*, x_e*, x_e*'); the generated C (components.c_codegen.design_checks_c_source) evaluates them at the target.
+
+def F_d(desc: Description, family: str) -> sympy.Matrix:
+    """F_d = J_d - R_d of eq. (closedloop) with the gains' symbols: [[0, I, 0], [-I, -R_m, Gamma],
+    [0, -Gamma^T + D_d, J_e - R_e_bar]], Gamma = 0 for family c1 (Proposition 1, Theorem 2). Theorem 1 (i)
+    asks it to be Hurwitz (components.closed_loop.F_d is its numpy form)."""
+    m, e = desc.n_m, desc.n_e
+    R_e_bar, D_d = _matrix("R_e_bar", e, e), _matrix("D_d", e, m)
+    Gamma = desc.Gamma if family == "u2" else sympy.zeros(m, e)
+    if Gamma is None:
+        raise ValueError(f"{desc.source}: eq. (u2) needs Gamma and phi of Assumption 2/4, which the plant lacks")
+    return sympy.BlockMatrix([[sympy.zeros(m, m), sympy.eye(m), sympy.zeros(m, e)],
+                              [-sympy.eye(m), -desc.R_m, Gamma],
+                              [sympy.zeros(e, m), -Gamma.T + D_d, desc.J_e - R_e_bar]]).as_explicit()
+
+
+def hess_phi(desc: Description) -> sympy.Matrix:
+    """hess phi(x_e) of Assumptions 2/4 (eq. assHereg / assHe): > 0 at x_e_d, x_e*(t)."""
+    if desc.phi is None:
+        raise ValueError(f"{desc.source}: the plant has no phi of Assumption 2/4")
+    return sympy.hessian(desc.phi, desc.x_e_symbols)
+
+
+def hess_H_d(desc: Description, family: str) -> sympy.Matrix:
+    """The Hessian of the closed loop's energy H_d (eq. closedloop), whose value at the target eqs. (phi12)
+    (Proposition 1) and (Phic22) (Proposition 2) ask to be > 0:
+        c1: H_d = H(eta) + Phi_1(x_e), Phi_1 quadratic with weight W (its gradient W (x_e - x_e* + L_2) is eq. (c1)'s)
+        u2: H_d = 1/2 p^T M^-1(q) p + V(q) + phi(x_e) + 1/2 (z - L_3)^T K_c (z - L_3), z of eq. (z)
+    (the linear terms L_2, L_3 do not enter the Hessian; components.proposition1/2.hess_H_d are the numpy forms)."""
+    E = plant_expressions(desc)
+    e = desc.n_e
+    q, p, x = (sympy.Matrix(v) for v in (E.q, E.p, E.x_e))
+    if family == "c1":
+        W = _matrix("W", e, e)
+        H_d = E.H + (x.T * W * x)[0, 0] / 2
+    elif family == "u2":
+        if desc.Gamma is None or desc.phi is None:
+            raise ValueError(f"{desc.source}: eq. (u2) needs Gamma and phi of Assumption 2/4, which the plant lacks")
+        R_e_bar, K_c = _matrix("R_e_bar", e, e), _matrix("k_c", e, e)
+        z = -desc.G_e.T * (desc.J_e - R_e_bar).inv().T * (desc.Gamma.T * q + x)              # eq. (z)
+        H_d = (p.T * E.M_inv * p)[0, 0] / 2 + E.V + desc.phi + (z.T * K_c * z)[0, 0] / 2
+    else:
+        raise ValueError(f"no control law family {family!r} (c1, u2)")
+    return sympy.hessian(H_d, E.eta)
+
+
+@dataclass(frozen=True)
+class DesignMatrices:
+    """What components.certificates.design_checks decides, as matrices at the target eta_d (regulation) or
+    eta*(t) of the jet (tracking), in a DesignLaw's inputs and gains (each None where the design does not ask it):
+
+        hess_H_d   n x n   eq. (phi12) / (Phic22): hess H_d(eta_d) > 0 (scaled to a unit diagonal)
+        hess_q_H   n_m^2   Assumption 1: hess_q H(eta_d) > 0
+        R_m        n_m^2   Assumptions 1, 3: R_m > 0
+        hess_phi   n_e^2   Assumptions 2, 4: hess phi(x_e_d), hess phi(x_e*) > 0
+        K_e        n_e^2   K_e = R_e_bar - R_e >= 0 (> 0 for Theorem 3), eq. (barRe)
+        F_d        n x n   Theorem 1 (i): F_d Hurwitz (Theorems 2 and 3)"""
+
+    hess_H_d: sympy.Matrix | None
+    hess_q_H: sympy.Matrix | None
+    R_m: sympy.Matrix | None
+    hess_phi: sympy.Matrix | None
+    K_e: sympy.Matrix
+    F_d: sympy.Matrix | None
+
+
+def design_matrices(desc: Description, design: str, gain_names: tuple[str, ...]) -> DesignMatrices:
+    """The DesignMatrices of `design` for a plant with n_m = n_e = 1 and constant mass (the DesignLaw's gains
+    and reference: `design_law`)."""
+    law_of = design_law(desc, design, gain_names)
+    family = FAMILY[design]
+    E = plant_expressions(desc)
+    jet, subs = feasible_reference(desc)
+    q_s, p_s, x_s, _ = _reference_symbols(desc)
+    e = desc.n_e
+    gains = {"R_e_bar": law_of.R_e_bar, "D_d": _design_gain(desc, gain_names, "D_d"),
+             "W": _design_gain(desc, gain_names, "W"), "k_c": law_of.k_c}
+    replace = {_matrix(n, e, e if n != "D_d" else desc.n_m)[0, 0]: v for n, v in gains.items()}
+    if TRACKING[design]:
+        reference: dict = {}
+    else:
+        q_d = sympy.Symbol("q_d", real=True)
+        reference = {jet[0]: q_d, jet[1]: sympy.Integer(0), jet[2]: sympy.Integer(0), jet[3]: sympy.Integer(0)}
+    target = {s: subs[r] for s, r in zip(E.eta, (*q_s, *p_s, *x_s))}
+
+    def at_target(M: sympy.Matrix) -> sympy.Matrix:
+        return M.xreplace(replace).xreplace(target).xreplace(reference)
+    m = desc.n_m
+    regulation = design in ("Proposition1", "Proposition2")
+    hess_H = sympy.hessian(E.H, E.eta)
+    return DesignMatrices(
+        hess_H_d=at_target(hess_H_d(desc, family)) if regulation else None,
+        hess_q_H=at_target(hess_H[:m, :m]) if design == "Proposition1" else None,
+        R_m=desc.R_m if design in ("Proposition1", "Theorem2") else None,
+        hess_phi=at_target(hess_phi(desc).xreplace(dict(zip(desc.x_e_symbols, E.x_e))))
+        if family == "u2" else None,
+        K_e=at_target(_matrix("R_e_bar", e, e) - desc.R_e),
+        F_d=at_target(F_d(desc, family)) if not regulation else None)
+
+
+def _design_gain(desc: Description, gain_names: tuple[str, ...], name: str) -> sympy.Expr:
+    """A gain of a one-degree-of-freedom design as design_law takes it: its parameter, its form or default in
+    the description's gain table, W = 1 (the paper's Phi_1 / Theta_1)."""
+    from .description import gain_table
+    if name in gain_names:
+        return sympy.Symbol(name, real=True)
+    defaults, forms, _ = gain_table(desc)
+    if name in forms:
+        return forms[name][0][0, 0]
+    if name in defaults:
+        return sympy.Float(defaults[name][0][0])
+    if name == "W":
+        return sympy.Integer(1)
+    raise ValueError(f"{desc.source}: no gain {name}")

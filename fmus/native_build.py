@@ -7,7 +7,8 @@ values, ModelStructure and DefaultExperiment of its pythonfmu twin (the modelDes
 fmus/model_description.py from the twin's slave class, with `Native`: needsExecutionTool="false", the
 generator's name, <SourceFiles>), and carries
     sources/       emc_fmi2.c, emc_fmi2.h (fmus/native/: the framework), emc_plant.c, emc_framework.h (the
-                   plant kind; emc_controller.c, emc_controller.h for a controller, emc_reference.c,
+                   plant kind; emc_controller.c, emc_controller.h, emc_design.c, emc_design.h for a controller;
+                   emc_reference.c,
                    emc_reference.h for the Reference), model.c, emc_model.h (components.c_codegen: the model
                    functions), config.c, emc_config.h (from the twin's variables: the value references), the
                    FMI 2.0 headers
@@ -30,7 +31,7 @@ from typing import Sequence
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import tostring
 
-from components.c_codegen import MODEL_HEADER, model_c_source
+from components.c_codegen import MODEL_HEADER, design_checks_available, model_c_source
 from components.description import Description, load
 
 from .model_description import Native, model_description
@@ -231,8 +232,8 @@ def _package(slave, framework: tuple[str, ...], generated: dict[str, str], sourc
 
 
 # ---- controllers ------------------------------------------------------------------------------------
-CONTROLLER_FRAMEWORK = (*COMMON, "emc_controller.c", "emc_controller.h")
-CONTROLLER_SOURCE_FILES = ("emc_fmi2.c", "emc_controller.c", "controller.c", "model.c", "config.c")
+CONTROLLER_FRAMEWORK = (*COMMON, "emc_controller.c", "emc_controller.h", "emc_design.c", "emc_design.h")
+CONTROLLER_SOURCE_FILES = ("emc_fmi2.c", "emc_controller.c", "emc_design.c", "controller.c", "model.c", "config.c")
 STRICT_PH = {"Proposition1": 1, "Proposition2": 0, "Theorem2": -1, "Theorem3": -1}   # eq. (pHcondition)
 
 
@@ -266,6 +267,9 @@ def controller_config(slave, desc: Description, design, guid: str) -> tuple[str,
         f"#define EMC_N_GAINS {len(gains)}",
         f"#define EMC_N_CONTROLLER_INPUTS {len(inputs)}",
         f"#define EMC_N_VARIABLES {len(rows)}",
+        f"#define EMC_N_STATES {2 * desc.n_m + desc.n_e}",
+        # controller.c has emc_ctrl_design (components.c_codegen.design_checks_c_source): strict as the twin's
+        f"#define EMC_DESIGN_CHECKED {int(design_checks_available(desc))}",
         f"#define EMC_TRACKING {int(design.tracking)}",
         f"#define EMC_STRICT_PH {STRICT_PH[design.name]}",
         f"#define EMC_ASK_K_C {int(family == 'u2')}",

@@ -550,9 +550,10 @@ def test_controller_equals_the_twin(native_controllers, fmus, name) -> None:
 
 
 def test_controller_refusals(native_controllers) -> None:
-    """strict = 1, a set point outside the domain, D_d against eq. (pHcondition) (Proposition 1), a reference
-    past the magnet (Theorem 3), a NaN input: fmi2Error at initialization or at fmi2GetReal (fmi2Discard in
-    doStep), never a number."""
+    """strict = 1 with a violated design condition (K_e < 0 for Theorem 3: tests/test_native_strict.py compares every
+    condition with the twin), a set point outside the domain, D_d against eq. (pHcondition) (Proposition 1), a
+    reference past the magnet (Theorem 3), a NaN input: fmi2Error at initialization or at fmi2GetReal (fmi2Discard
+    in doStep), never a number."""
     from fmpy.fmi2 import FMU2Slave
 
     def fresh(name: str):
@@ -573,9 +574,10 @@ def test_controller_refusals(native_controllers) -> None:
         f.freeInstance()
     f, vr = fresh("Maglev_Theorem3")
     f.setInteger([vr["strict"]], [1])
+    f.setReal([vr["R_e_bar"]], [0.82])                           # K_e = R_e_bar - R_e < 0 (the R0.82 scenarios)
     with pytest.raises(FMICallException):
         f.exitInitializationMode()
-    f.setInteger([vr["strict"]], [0])
+    f.setInteger([vr["strict"]], [0])                            # a warning, and it runs
     f.exitInitializationMode()
     f.setReal([vr["q_star"]], [0.006])                           # past the magnet at c = 0.005
     with pytest.raises(FMICallException):

@@ -10,8 +10,10 @@
  *
  * A u that cannot be computed (a reference that is not feasible, Definition 1: q* outside the domain or
  * 2 F* / g <= 0; a u that is not finite) is answered with fmi2Error (fmi2Discard in doStep) and one log line,
- * never with NaN. strict = 1 (the twin's design checks, components.certificates.design_checks) is not provided:
- * it is refused at fmi2ExitInitializationMode.
+ * never with NaN. The design's conditions (components.certificates.design_checks: the matrices of
+ * components.laws.design_matrices at the target, from controller.c's emc_ctrl_design) are checked at
+ * fmi2ExitInitializationMode as the twin checks them (fmus/controller.py): a violated one is logged as a warning
+ * with strict = 0 and refuses initialization with strict = 1, with the twin's words and numbers.
  *
  * Sizes come from emc_config.h: EMC_N_CONTROLLER_INPUTS inputs and EMC_N_OUTPUTS outputs (u, n_e of them), the law's
  * Jacobian row-major (outputs x inputs). Two forms of controller.c are served: the law in one function,
@@ -26,6 +28,7 @@
 
 #include "emc_fmi2.h"
 #include "emc_controller.h"
+#include "emc_design.h"
 
 #define EMC_NI EMC_N_CONTROLLER_INPUTS
 #ifdef EMC_N_OUTPUTS
@@ -155,6 +158,70 @@ static fmi2Status du_along(emc_instance *c, const char *function, emc_data *d, c
     return fmi2OK;
 }
 
+/* ---- the design's conditions (components.certificates.design_checks) ------------------------------- */
+#if EMC_DESIGN_CHECKED                      /* controller.c has emc_ctrl_design (emc_config.h) */
+/* the design's conditions at the inputs: fmi2OK when they hold or strict = 0 (a warning names the violated
+   ones, as the twin's); fmi2Error with the twin's reason when strict = 1 */
+static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d)
+{
+    double v[EMC_DESIGN_VALUES], u[EMC_NO], poly[EMC_DESIGN_MAX_ORDER + 1];
+    char text[900];
+    size_t used = 0;
+    int k, i, failed = 0, reference = law(d, u, NULL) == NULL;
+    emc_ctrl_design(d->par, d->gain, d->in, v);
+    for (k = 0; k < EMC_N_DESIGN_CHECKS; k++) {
+        const emc_design_check *check = &EMC_DESIGN_CHECKS[k];
+        double number[2], shift;
+        const char *note = check->note;
+        int verdict = EMC_HOLDS;
+        if (check->at_reference && EMC_TRACKING && !reference) continue;    /* not applicable: no reference */
+        for (i = 0; i < check->count; i++) {
+            const double *A = v + check->number[i].offset;
+            int n = check->number[i].order;
+            switch (check->test) {
+            case EMC_TEST_SCALED:
+                verdict = emc_scaled_definiteness(A, n, &number[i], &note);
+                break;
+            case EMC_TEST_HURWITZ:
+                if (!emc_hurwitz_beyond_rounding(A, n, &shift)) verdict = EMC_FAILS;
+                emc_characteristic_polynomial(A, n, poly);
+                number[i] = emc_spectral_abscissa(poly, n);
+                if (fabs(number[i]) <= shift) number[i] = 0.0;       /* on the imaginary axis within rounding */
+                break;
+            default:
+                number[i] = emc_min_eig(A, n);
+                if (check->test == EMC_TEST_POSITIVE ? !(number[i] > 0.0) : !(number[i] >= 0.0)) verdict = EMC_FAILS;
+            }
+        }
+        if (verdict != EMC_FAILS) continue;
+        used += (size_t)snprintf(text + used, sizeof text - used, "%s%s (", failed ? "; " : "", check->name);
+        for (i = 0; i < check->count && used < sizeof text; i++)
+            used += (size_t)snprintf(text + used, sizeof text - used, "%s%s = %.4g", i ? ", " : "",
+                                     check->number[i].label, number[i]);
+        if (used < sizeof text)
+            used += (size_t)snprintf(text + used, sizeof text - used, note[0] ? ") [%s]" : ")%s", note);
+        if (used >= sizeof text) used = sizeof text - 1;
+        failed++;
+    }
+    if (!failed) return fmi2OK;
+    if (d->strict == 1)
+        return emc_fail(c, fmi2Error, "%s: the parameters violate %s's conditions: %s (strict = 1)", function,
+                        EMC_DESIGN_NAME, text);
+    emc_fail(c, fmi2Warning, "the parameters violate %s's conditions: %s; running anyway (strict = 0)",
+             EMC_DESIGN_NAME, text);
+    return fmi2OK;
+}
+#else
+/* no emc_ctrl_design for this controller: strict = 1 is refused (use the pythonfmu twin) */
+static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d)
+{
+    if (d->strict == 1)
+        return emc_fail(c, fmi2Error, "%s: strict = 1 (the design checks of components.certificates) is not provided "
+                        "by this native controller; use its pythonfmu twin", function);
+    return fmi2OK;
+}
+#endif
+
 /* ---- variables ---------------------------------------------------------------------------------- */
 emc_role emc_role_of(fmi2ValueReference vr)
 {
@@ -217,10 +284,8 @@ fmi2Status emc_exit_initialization(emc_instance *c, emc_common *s)
     emc_data *d = (emc_data *)s;
     if (d->strict != 0 && d->strict != 1)
         return emc_fail(c, fmi2Error, "fmi2ExitInitializationMode: parameter strict = %d violates strict in {0, 1}", d->strict);
-    if (d->strict == 1)
-        return emc_fail(c, fmi2Error, "fmi2ExitInitializationMode: strict = 1 (the design checks of "
-                        "components.certificates) is not provided by the native controller; use its pythonfmu twin");
-    return check_design(c, "fmi2ExitInitializationMode", d);
+    if (check_design(c, "fmi2ExitInitializationMode", d) != fmi2OK) return fmi2Error;
+    return check_conditions(c, "fmi2ExitInitializationMode", d);
 }
 
 fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_common *s)

@@ -2,6 +2,7 @@
  *
  * emc_config.h (fmus/native_build.py): EMC_MODEL_IDENTIFIER, EMC_GUID, EMC_N_PARAMETERS (the plant's),
  * EMC_N_GAINS, EMC_N_CONTROLLER_INPUTS (q, p, x_e, then the jet when tracking), EMC_N_VARIABLES,
+ * EMC_N_STATES (n = 2 n_m + n_e), EMC_DESIGN_CHECKED (1: controller.c has emc_ctrl_design),
  * EMC_TRACKING, EMC_STRICT_PH (1: eq. pHcondition strictly, Proposition 1; 0: weakly, Proposition 2;
  * -1: not asked, the theorems), EMC_ASK_K_C (1: k_c > 0 is a condition);
  * controller.c (components.c_codegen.controller_c_source): the law and its Jacobian; model.c: the plant's
@@ -42,6 +43,36 @@ EMC_CTRL_FUNCTION(du);
 EMC_CTRL_FUNCTION(reference);
 EMC_CTRL_FUNCTION(conditions);
 int emc_check_gains(const double *gain);
+
+/* the design's conditions (components.certificates.design_checks), checked at fmi2ExitInitializationMode: warned
+   with strict = 0, refused with strict = 1 (components.c_codegen.design_checks_c_source) */
+typedef enum {
+    EMC_TEST_POSITIVE,      /* every number (the smallest eigenvalue of a matrix's symmetric part) > 0 */
+    EMC_TEST_NONNEGATIVE,   /* every number >= 0 */
+    EMC_TEST_SCALED,        /* > 0 scaled to a unit diagonal, inconclusive within rounding (certificates.definiteness) */
+    EMC_TEST_HURWITZ        /* Routh-Hurwitz; the number: the largest real part of an eigenvalue */
+} emc_design_test;
+
+typedef struct {
+    const char *label;      /* as components.certificates names the number */
+    int offset;             /* of the matrix in emc_ctrl_design's out (row-major) */
+    int order;              /* the matrix is order x order */
+} emc_design_number;
+
+typedef struct {
+    const char *name;
+    emc_design_test test;
+    int at_reference;       /* 1: not applicable when the reference at the inputs is not feasible */
+    int count;
+    emc_design_number number[2];
+    const char *note;       /* printed with a failed check ("" for none) */
+} emc_design_check;
+
+#define EMC_DESIGN_VALUES (6 * EMC_N_STATES * EMC_N_STATES)       /* emc_ctrl_design's out holds at most this */
+void emc_ctrl_design(const double *par, const double *gain, const double *in, double *out);
+extern const char *const EMC_DESIGN_NAME;
+extern const int EMC_N_DESIGN_CHECKS;
+extern const emc_design_check EMC_DESIGN_CHECKS[];
 int emc_check_parameters(const double *par);
 
 #endif

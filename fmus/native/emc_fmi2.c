@@ -24,7 +24,7 @@
 #define EMC_MAGIC 0x656d636fu              /* "emco": a live instance */
 #define EMC_DATA_MAGIC 0x656d7374u         /* "emst": a model's data (current or saved) */
 #define EMC_STATE_POOL 8                   /* FMU states an instance can hold at once (fmi2GetFMUstate) */
-#define EMC_MESSAGE 512
+#define EMC_MESSAGE 1024                  /* a design check's warning lists every failed condition */
 #define EMC_TIME_TOLERANCE 1e-12           /* fmus/slave.py: COMMUNICATION_POINT_TOLERANCE */
 
 struct emc_instance {
@@ -83,7 +83,8 @@ fmi2Status emc_fail(emc_instance *c, fmi2Status status, const char *format, ...)
 {
     va_list args;
     va_start(args, format);
-    vlog(c, status, status == fmi2Discard ? "logStatusDiscard" : "logStatusError", format, args);
+    vlog(c, status, status == fmi2Warning ? "logStatusWarning" : status == fmi2Discard ? "logStatusDiscard" : "logStatusError",
+         format, args);
     va_end(args);
     return status;
 }

@@ -41,7 +41,8 @@ typedef struct {
 typedef struct emc_instance emc_instance;
 
 /* ---- what the framework offers a model ---------------------------------------------------------- */
-/* log one line "<identifier>: <text>" with `status` (fmi2Discard: category logStatusDiscard, else logStatusError;
+/* log one line "<identifier>: <text>" with `status` (fmi2Warning: category logStatusWarning, fmi2Discard:
+   logStatusDiscard, else logStatusError;
    logged even with logging off) and return `status` */
 fmi2Status emc_fail(emc_instance *c, fmi2Status status, const char *format, ...);
 fmi2Type emc_interface(const emc_instance *c);      /* fmi2ModelExchange or fmi2CoSimulation */

@@ -1,10 +1,13 @@
 /* A C host for a native controller FMU's sources under AddressSanitizer and UndefinedBehaviorSanitizer
  * (tests/test_native_sanitizers.py): both interfaces legally, then the illegal calls, NULL and out-of-range
- * arguments, NaN inputs, an infeasible reference, a full FMU-state pool and a corrupted serialized state.
+ * arguments, NaN inputs, an infeasible reference, a full FMU-state pool and a corrupted serialized state; the
+ * design's conditions (emc_ctrl_design) with the parameter argv[1] set to argv[2], a value that violates one:
+ * refused with strict = 1, warned with strict = 0.
  * The exit status is the number of mismatches. Linked with the sources (no dlopen). */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "fmi2Functions.h"
@@ -44,10 +47,13 @@ static fmi2ValueReference vr_of(const char *name)
     return 0;
 }
 
+static const char *broken_name;             /* a parameter, and a value of it that violates a design condition */
+static double broken_value;
+
 static void run(fmi2Type type)
 {
     fmi2Component c = fmi2Instantiate("c", type, EMC_GUID, NULL, &callbacks, fmi2False, fmi2False);
-    fmi2ValueReference u[1], ins[EMC_N_CONTROLLER_INPUTS], strict[1], bad[1] = {9999};
+    fmi2ValueReference u[1], ins[EMC_N_CONTROLLER_INPUTS], strict[1], bad[1] = {9999}, broken[1];
     fmi2Real value[EMC_N_CONTROLLER_INPUTS], one[1], seeds[EMC_N_CONTROLLER_INPUTS];
     fmi2Integer orders[EMC_N_CONTROLLER_INPUTS], flag[1] = {1};
     fmi2FMUstate states[9] = {NULL};
@@ -58,6 +64,7 @@ static void run(fmi2Type type)
     if (c == NULL) { failures++; return; }
     u[0] = vr_of("u");
     strict[0] = vr_of("strict");
+    broken[0] = vr_of(broken_name);
     for (i = 0; i < EMC_N_CONTROLLER_INPUTS; i++) {
         ins[i] = vr_of(EMC_INPUT_NAMES[i]);
         orders[i] = 1 + i % 3;
@@ -71,12 +78,18 @@ static void run(fmi2Type type)
     EXPECT(fmi2SetInteger(c, strict, 1, flag), fmi2OK);
     EXPECT(fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0), fmi2OK);
     EXPECT(fmi2EnterInitializationMode(c), fmi2OK);
-    EXPECT(fmi2ExitInitializationMode(c), fmi2Error);                      /* strict = 1 is not provided */
+    EXPECT(fmi2ExitInitializationMode(c), fmi2OK);                         /* strict = 1: the conditions hold */
+    EXPECT(fmi2Reset(c), fmi2OK);
+    EXPECT(fmi2SetInteger(c, strict, 1, flag), fmi2OK);
+    EXPECT(fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0), fmi2OK);
+    EXPECT(fmi2EnterInitializationMode(c), fmi2OK);
+    EXPECT(fmi2SetReal(c, broken, 1, &broken_value), fmi2OK);
+    EXPECT(fmi2ExitInitializationMode(c), fmi2Error);                      /* strict = 1: one is violated */
     flag[0] = 0;
     EXPECT(fmi2SetInteger(c, strict, 1, flag), fmi2OK);
     EXPECT(fmi2SetInteger(c, u, 1, flag), fmi2Error);
     EXPECT(fmi2GetReal(c, u, 1, one), fmi2OK);
-    EXPECT(fmi2ExitInitializationMode(c), fmi2OK);
+    EXPECT(fmi2ExitInitializationMode(c), fmi2OK);                         /* strict = 0: a warning */
     EXPECT(fmi2GetReal(c, ins, EMC_N_CONTROLLER_INPUTS, value), fmi2OK);
     EXPECT(fmi2GetDirectionalDerivative(c, u, 1, ins, EMC_N_CONTROLLER_INPUTS, seeds, one), fmi2OK);
     EXPECT(fmi2GetDirectionalDerivative(c, ins, 1, u, 1, seeds, one), fmi2Error);
@@ -130,8 +143,14 @@ static void run(fmi2Type type)
     fmi2FreeInstance(c);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
+    if (argc != 3) {
+        fprintf(stderr, "usage: host PARAMETER VALUE (a value that violates a design condition)\n");
+        return 1;
+    }
+    broken_name = argv[1];
+    broken_value = strtod(argv[2], NULL);
     run(fmi2ModelExchange);
     run(fmi2CoSimulation);
     fprintf(stderr, "%d mismatches\n", failures);

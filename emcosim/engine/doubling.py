@@ -45,9 +45,11 @@ from .fmustate import States
 THRESHOLD = 1e-2        # default: a run whose estimate exceeds this fraction of a variable's range is not accepted
 FLOOR = 1e-2           # a variable's scale is at least this times its largest magnitude (`relative`)
 BUDGET = 0.05           # the estimate's cost: about this fraction of the run's own steps (`windows`)
-COST = {"explicit": 3.5, "implicit": 6.5}   # a doubled step's cost in steps of the run (measured: module doc)
+COST = {"explicit": 3.5, "implicit": 6.5}   # a doubled step's nominal cost in steps of the run (measured on
+                                            # the paper scenarios: 0.5-4 explicit, 6.5-9 implicit; so the
+                                            # estimate costs 1-7 % of a run, docs/scenarios.md)
 MINIMUM = 2             # steps doubled at least
-FIRST = 16              # the first window: at most FIRST steps (half the budget)
+FIRST = 16              # the first window: at most FIRST steps (two thirds of the budget)
 SHORT = 20              # a run of at most SHORT steps is doubled whole
 LENGTH = 2              # the later windows' length in steps
 JACOBIANS = 8           # implicit coupling's Jacobians at the halves kept from window to window
@@ -246,7 +248,7 @@ def windows(n_steps: int, cost: float = 0.0) -> dict[int, tuple[int, float]]:
 
     A run of at most SHORT steps is doubled whole (a Richardson estimate of its global error). Otherwise the
     budget: BUDGET of the run's steps over `cost`, what a doubled step costs in steps of the run (COST of the
-    coupling), but at least MINIMUM steps. Half of it (at most FIRST steps) is the first window, which covers
+    coupling), but at least MINIMUM steps. Two thirds of it (at most FIRST steps) are the first window, which covers
     the initial transient and stands for itself; the rest are windows of LENGTH steps (one shorter window where
     less is left) in the middles of equal spans of the remaining steps, each standing for the steps from its
     start to the next window's (the first of them also for those between the first window and itself): every

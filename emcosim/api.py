@@ -298,7 +298,9 @@ def sweep(scenario: Scenario | str | Path, grid: Sequence[tuple[str, Sequence[fl
     interface_type="ModelExchange"). `metrics(scenario, values, result)` gives a row's numbers: by default the
     paper's report metrics for this suite's FMUs (settling time, overshoot, ISE, ...), else the last value of
     every recorded variable (emcosim.sweeps.final_values). `settings` are the sweep's own (samples, n_samples,
-    seed, workers, scheduler, stream, security, on_row, max_runs: see emcosim.sweeps.sweep).
+    seed, workers, scheduler, stream, security, on_row, max_runs, threshold: see emcosim.sweeps.sweep). A row's
+    'coupling_error' is the run's estimated coupling error; above `threshold` (default 1e-2) its status reads
+    "not accepted: ..." (info["not_accepted"] counts them).
 
     >>> rows, info = sweep("maglev_tracking_D0_R0.82", [("controller.D_d", [-0.78, 0.0])],
     ...                    RunOptions(stop_time=1.0), workers=1, stream=None)        # doctest: +SKIP

@@ -239,6 +239,10 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--rtol", type=float, help="the solver's relative tolerance of ModelExchange runs, as `run --rtol`")
     sw.add_argument("--solver", choices=("LSODA", "BDF", "Radau"), help="scipy's integrator of ModelExchange runs")
     sw.add_argument("--fmu-dir", help="take every FMU from this folder (by file name) instead of the .ssd's paths")
+    sw.add_argument("--error-threshold", type=float, default=None, metavar="E",
+                    help="as `run --error-threshold`: a fixed-step run whose estimated coupling error exceeds E of a "
+                         "recorded variable's range is marked 'not accepted' in the table, left out of the plots, and "
+                         "the sweep exits 5 (default 1e-2)")
     sw.add_argument("--no-plots", action="store_true", help="write the table only")
     sw.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
     sw.set_defaults(func=cmd_sweep)
@@ -586,6 +590,7 @@ def cmd_sweep(args) -> int:
     samples = [parse_sample(s) for s in args.sample]
     points(grid, samples, args.samples, args.seed, max_runs)       # its size, before anything is read
     options = run_options(args)                   # checked as run's
+    threshold = _error_threshold(args.error_threshold)
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers {args.workers}: must be >= 1")
     scenario = _read(args.scenario, args.fmu_dir, args)
@@ -599,7 +604,7 @@ def cmd_sweep(args) -> int:
         try:
             rows, info = sweep(scenario, grid, samples, args.samples, args.seed, options, workers=args.workers,
                                scheduler=args.scheduler, stream=None if args.no_progress else sys.stderr,
-                               security=tls, on_row=stream, max_runs=max_runs)
+                               security=tls, on_row=stream, max_runs=max_runs, threshold=threshold)
         finally:
             stream.close()
         files = write_table(rows, folder.path, info)
@@ -622,7 +627,8 @@ def cmd_sweep(args) -> int:
         raise
     folder.commit()
     workers = f"{info['workers']} worker{'s' if info['workers'] != 1 else ''}"
-    print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed) on {workers}, "
+    rejected = f", {info['not_accepted']} not accepted" if info["not_accepted"] else ""
+    print(f"{scenario.name}: {info['runs']} runs ({info['failed']} failed{rejected}) on {workers}, "
           f"{info['runs_per_s']:.3g} runs/s; {len(files)} files in {out}")
     if info["failed"] and args.step_size is None and args.tolerance is None:
         step = f" ({scenario.step_size:g} s)" if scenario.step_size else ""
@@ -630,6 +636,12 @@ def cmd_sweep(args) -> int:
         print(f"emcosim: note: the runs used the scenario's step{step}, chosen for its own gains; "
               f"failed runs may need --step-size or --tolerance{stiff} (the status column says why each failed)",
               file=sys.stderr)
+    if info["not_accepted"]:
+        print(f"emcosim: warning: {info['not_accepted']} of {info['runs']} runs estimate a coupling error above "
+              f"the accepted {threshold:g} of a recorded variable's range (--error-threshold): their rows say "
+              f"'not accepted' and the plots leave them out; a shorter --step-size, --coupling implicit or "
+              f"--tolerance keeps it (exit status {NOT_ACCEPTED}, docs/cli.md)", file=sys.stderr)
+        return NOT_ACCEPTED
     return 0
 
 

@@ -41,6 +41,7 @@ from typing import Callable, Iterator, TextIO
 
 import numpy as np
 
+from .engine.doubling import THRESHOLD
 from .engine.errors import LimitError, ScenarioError
 from .engine.options import RunOptions, options_of
 from .engine.ssd import Scenario, finite_number, read_scenario
@@ -57,6 +58,8 @@ per run: sweep.md, sweep.json and the plots are written from it), and 10^5 runs 
 three hours on one core."""
 
 IN_FLIGHT_PER_THREAD = 2
+NOT_ACCEPTED = "not accepted: "
+"""The start of the status of a run whose estimated coupling error exceeds the sweep's threshold."""
 """Runs submitted to the cluster per worker thread at a time (one running, one waiting): see run_all."""
 
 
@@ -214,9 +217,12 @@ def final_values(scenario: Scenario, values: dict[str, float], result) -> dict[s
 
 
 def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], options: RunOptions | None = None,
-              metrics: Metrics | None = None, **settings) -> dict:
-    """Run the scenario once with `values` and return its table row: the values, the metrics and
-    'status' ('ok' or the one-line error). Never raises for a failing run. `options` (RunOptions; `settings`:
+              metrics: Metrics | None = None, threshold: float = THRESHOLD, **settings) -> dict:
+    """Run the scenario once with `values` and return its table row: the values, the metrics,
+    'coupling_error' (a fixed-step co-simulation's estimated coupling error, the largest over the recorded
+    variables relative to each one's range, engine/doubling.py; None where there is none) and 'status' ('ok',
+    NOT_ACCEPTED and why where that estimate exceeds `threshold`, or the one-line error). Never raises for a
+    failing run. `options` (RunOptions; `settings`:
     shorthands for its fields) as for `emcosim run`: e.g. a `tolerance` for error-controlled communication steps
     instead of the fixed step, which the scenario chose for its own gains and which other gains may not bear;
     `coupling`, `coupling_order`; interface_type "ModelExchange" runs the FMUs as one ODE. `metrics(scenario,
@@ -227,7 +233,11 @@ def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], options: 
         scenario, session = _session(ssd, fmu_dir, options.model_exchange)
         result = session.run({k: float(v) for k, v in values.items()}, options)
         row.update((metrics or final_values)(scenario, values, result))
+        estimate = getattr(result, "coupling_error", None)
+        row["coupling_error"] = estimate.worst()[1] if estimate is not None and estimate.available else None
         row["status"] = "ok"
+        if estimate is not None and not estimate.accepted(threshold):
+            row["status"] = f"{NOT_ACCEPTED}{estimate.summary()}: above {threshold:g} of its range"
     except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash
         text = " ".join(str(exc).split())
         row["status"] = text if isinstance(exc, ScenarioError) else f"{type(exc).__name__}: {text}"
@@ -358,7 +368,7 @@ def _sigint_ignored() -> Iterator[None]:
 
 def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]], options: RunOptions | None = None,
             stream: TextIO | None = sys.stderr, on_row=None, in_flight: int | None = None,
-            metrics: Metrics | None = None, **settings) -> list[dict]:
+            metrics: Metrics | None = None, threshold: float = THRESHOLD, **settings) -> list[dict]:
     """Run every point on the cluster and return the rows in the order of `runs`. At most `in_flight`
     runs are submitted at a time (default IN_FLIGHT_PER_THREAD per worker thread, counted again every
     second so that workers joining a running cluster get work), the next ones as each finishes: the
@@ -378,12 +388,12 @@ def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
 
     def submit(count: int) -> None:
         for i, values in itertools.islice(todo, count):
-            future = client.submit(run_point, ssd, fmu_dir, values, options, metrics, pure=False)
+            future = client.submit(run_point, ssd, fmu_dir, values, options, metrics, threshold, pure=False)
             pending[future.key] = (i, future)
             done.add(future)
 
     rows: list[dict | None] = [None] * len(runs)
-    failed = 0
+    failed = rejected = 0
     bar = None if stream is None else Counter(len(runs), "sweep", "run", stream)
     try:
         submit(window.size())
@@ -394,9 +404,11 @@ def run_all(client, ssd: str, fmu_dir: str | None, runs: list[dict[str, float]],
             submit(max(window.size() - len(pending), 0))
             if on_row is not None:
                 on_row(i, rows[i])
-            failed += rows[i]["status"] != "ok"
+            status = rows[i]["status"]
+            failed += status != "ok" and not status.startswith(NOT_ACCEPTED)
+            rejected += status.startswith(NOT_ACCEPTED)
             if bar is not None:
-                bar.advance(f"{failed} failed" if failed else "")
+                bar.advance(", ".join([f"{failed} failed"] * bool(failed) + [f"{rejected} not accepted"] * bool(rejected)))
     except BaseException:
         _cancel(client, [f for _, f in pending.values()])
         raise
@@ -444,11 +456,11 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
           options: RunOptions | None = None, workers: int | None = None,
           scheduler: str | None = None, stream: TextIO | None = sys.stderr, security=None,
           on_row=None, max_runs: int = MAX_RUNS, metrics: Metrics | None = None,
-          **settings) -> tuple[list[dict], dict]:
+          threshold: float = THRESHOLD, **settings) -> tuple[list[dict], dict]:
     """Run the whole sweep; returns (rows, info) where info holds the units of the parameters,
     the wall time and the throughput. `options` (RunOptions; `settings`: shorthands for its fields): the
     settings of every run, see `run_point` (Co-Simulation or Model Exchange); `on_row(i, row)`: see `run_all`;
-    `max_runs`: see MAX_RUNS; `metrics`: see `run_point`. Progress lines go to `stream` while the cluster starts."""
+    `max_runs`: see MAX_RUNS; `metrics`, `threshold`: see `run_point`. Progress lines go to `stream` while the cluster starts."""
     options = options_of(options, **settings)
     runs = points(grid, samples, n_samples, seed, max_runs)
     names = list(runs[0])
@@ -464,12 +476,16 @@ def sweep(scenario: Scenario, grid: list[tuple[str, list[float]]],
             print(f"sweep: {len(client.nthreads())} workers ready after {started - tic:.1f} s", file=stream, flush=True)
         # an interruption leaves the workers' FMUs alone: a cancelled run may still be stepping them (a local
         # cluster's workers end with it; a remote worker keeps its session for the next sweep, or frees it at exit)
-        rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, options, stream, on_row, metrics=metrics)
+        rows = run_all(client, str(scenario.path.resolve()), fmu_dir, runs, options, stream, on_row, metrics=metrics,
+                       threshold=threshold)
         end = time.perf_counter()
         n_workers = len(client.nthreads())
         close_on_workers(client)
     closed = time.perf_counter()
-    info = {"scenario": scenario.name, "runs": len(rows), "failed": sum(r["status"] != "ok" for r in rows),
+    not_accepted = sum(r["status"].startswith(NOT_ACCEPTED) for r in rows)
+    info = {"scenario": scenario.name, "runs": len(rows),
+            "failed": sum(r["status"] != "ok" for r in rows) - not_accepted, "not_accepted": not_accepted,
+            "error_threshold": threshold,
             "workers": n_workers, "engine": scheduler or "dask LocalCluster (processes)",
             "wall_time_s": closed - tic, "run_time_s": end - started,
             "runs_per_s": len(rows) / (end - started) if end > started else float("nan"),

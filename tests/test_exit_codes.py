@@ -114,6 +114,19 @@ def test_status(status, tmp_path, capsys):
     assert CASES[status](tmp_path, capsys) == status
 
 
+@pytest.mark.slow      # a dask cluster starts: 5-10 s (the quick set has the sweep's status 5 in test_sweep.py)
+def test_status_5_of_a_sweep(tmp_path, capsys):
+    """A sweep one of whose runs estimates a coupling error above --error-threshold (MEMS with D_d = -1 at 4 us,
+    near explicit coupling's limit: 0.13 of H's range) exits 5, its table complete."""
+    out = tmp_path / "s"
+    status = main(["sweep", "mems_regulation_Dd0", "--grid", "controller.D_d=-1,0", "--stop-time", "1e-3",
+                   "--step-size", "4e-6", "--workers", "1", "--no-plots", "--no-progress", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("emcosim: warning: 1 of 2 runs estimate a coupling error above") and "exit status 5" in err[-1]
+    assert (out / "sweep.csv").is_file() and (out / "sweep.md").is_file()
+    assert status == 5
+
+
 @pytest.mark.parametrize("status", sorted(SIGNALS))
 def test_signal_status(status, tmp_path, capsys, monkeypatch):
     assert _signal(SIGNALS[status])(tmp_path, capsys, monkeypatch) == status

@@ -136,8 +136,10 @@ def test_run_plot_of_a_paper_scenario_shows_the_papers_quantities(fmu_dir, tmp_p
     assert spec.xlabel == "time t [µs]" and spec.legend == "right"
     check_drawn(spec)
     png = tmp_path / "r.png"
+    # --error-threshold: over the charging transient's 200 us the run's coupling error is 2 % of H's range
+    # (estimate 1.9 %, against a run at 2.5 us 2.0 %); the figure is the point here
     assert main(["run", "mems_tracking_Dd-0.4", "--stop-time", "2e-4", "--fmu-dir", str(fmu_dir), "--no-progress",
-                 "--output", str(tmp_path / "r.csv"), "--plot", str(png)]) == 0
+                 "--output", str(tmp_path / "r.csv"), "--plot", str(png), "--error-threshold", "0.05"]) == 0
     assert png.stat().st_size > 10_000
 
 

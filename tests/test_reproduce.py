@@ -162,3 +162,26 @@ def test_decision_runs_settle_as_the_monolithic_reference(decided, role, band):
     truth = monolithic_run(PAPER_CASES[role], role, DECISION_RUNS[role])
     assert report.run_metrics(truth).settling_time_2pct == pytest.approx(band, rel=1e-3)
     assert report.run_metrics(cosim).settling_time_2pct == pytest.approx(band, rel=0.01)
+
+
+@pytest.mark.parametrize("name", ["maglev_regulation_prop2", "mems_tracking_Dd-0.4"])
+def test_a_run_is_the_start_of_its_longer_run(name, fmu_dir):
+    """Issue 35: reproduce takes the scenario runs of the roles with a decision run from the start of that run
+    instead of running them again (reproduce._heads). That rests on this: a run's rows are the first rows of a
+    run of the same scenario to a later stop time, bit for bit but the last row's rounding of t (explicit and
+    implicit coupling; their error estimates step aside without changing a row)."""
+    from emcosim.engine.master import simulate
+    from emcosim.paper.reproduce import _head, _heads
+
+    s = read_scenario(ROOT / "scenarios" / name, fmu_dir=fmu_dir)
+    horizon = 25 * s.step_size
+    short, long = simulate(s, stop_time=horizon), simulate(s, stop_time=2 * horizon)
+    _, head, _ = _head((long.columns, long.rows, 1.0), horizon)
+    assert len(head) == len(short.rows) == 26
+    assert head[:-1] == short.rows[:-1]
+    assert head[-1][0] == pytest.approx(short.rows[-1][0], rel=1e-12)
+    assert np.allclose(head[-1][1:], short.rows[-1][1:], rtol=1e-9, atol=0)
+    heads = _heads(PAPER_CASES, None, DECISION_RUNS)
+    assert heads == {PAPER_CASES[r]: (f"{PAPER_CASES[r]}_to_{t:g}s", read_scenario(ROOT / "scenarios" / PAPER_CASES[r]).stop_time)
+                     for r, t in DECISION_RUNS.items()}
+    assert _heads(PAPER_CASES, 2e-3, DECISION_RUNS) == {}

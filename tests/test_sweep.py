@@ -41,16 +41,25 @@ def fmu_dir() -> Path:
     return d
 
 
-def sweep_cli(out: Path, fmu_dir: Path, *extra: str) -> list[dict]:
+def sweep_cli(out: Path, fmu_dir: Path, *extra: str, status: int = 0) -> list[dict]:
     code = cli.main(["sweep", SCENARIO, "--stop-time", STOP, "--step-size", STEP, "--fmu-dir", str(fmu_dir), "--out", str(out),
                      "--no-progress", *extra])
-    assert code == 0
+    assert code == status
     return read_table(out / "sweep.csv")
 
 
 @pytest.fixture(scope="module")
-def local_table(tmp_path_factory, fmu_dir) -> list[dict]:
-    return sweep_cli(tmp_path_factory.mktemp("local"), fmu_dir, "--grid", GRID, "--workers", "2")
+def local_sweep(tmp_path_factory, fmu_dir) -> Path:
+    """The folder of a sweep on a local cluster. At D_d = -1 and -0.5 explicit coupling at 4 us is near its
+    limit: their estimates exceed 1e-2 (exit 5)."""
+    out = tmp_path_factory.mktemp("local")
+    sweep_cli(out, fmu_dir, "--grid", GRID, "--workers", "2", status=5)
+    return out
+
+
+@pytest.fixture(scope="module")
+def local_table(local_sweep) -> list[dict]:
+    return read_table(local_sweep / "sweep.csv")
 
 
 def result_of_csv(path: Path) -> Result:
@@ -64,7 +73,6 @@ def result_of_csv(path: Path) -> Result:
 
 def test_sweep_equals_runs_one_by_one(local_table, fmu_dir, tmp_path):
     assert [r["controller.D_d"] for r in local_table] == [-1.0, -0.5, 0.0]
-    assert all(r["status"] == "ok" for r in local_table)
     scenario = read_scenario(ROOT / "scenarios" / SCENARIO, fmu_dir=fmu_dir)
     for row in local_table:
         value = row["controller.D_d"]
@@ -76,16 +84,38 @@ def test_sweep_equals_runs_one_by_one(local_table, fmu_dir, tmp_path):
         expected = metrics_of(scenario, {"controller.D_d": value}, result_of_csv(csv))
         for m in METRICS + ["initial_error"]:
             assert row[m] == expected[m], (value, m)          # bit for bit: same master, same FMUs
+        # the run's estimate, as `run` writes it in its file's first line
+        assert f"{row['coupling_error']:.2g} of its range" in csv.read_text().splitlines()[0]
     # the study is meaningful: coupled damping changes the response
     assert len({r["ise"] for r in local_table}) == 3
 
 
+def test_a_run_above_the_error_threshold_is_marked_and_the_sweep_exits_5(local_sweep, local_table, tmp_path):
+    """Issue 35: a sweep did not look at its runs' error estimates (a run exits 5 where its estimated coupling
+    error exceeds --error-threshold; a sweep used the same run's metrics silently and exited 0). Each row now has
+    its estimate; a run above the threshold has status "not accepted: ..." (its metrics kept in the table, left
+    out of the plots), sweep.md and sweep.json count them, and the sweep exits 5 (the local table's fixture)."""
+    import json
+
+    statuses = [r["status"] for r in local_table]
+    assert [s.startswith("not accepted: estimated coupling error") for s in statuses] == [True, True, False]
+    assert statuses[2] == "ok"
+    assert [r["coupling_error"] > 1e-2 for r in local_table] == [True, True, False]
+    assert all(r["ise"] is not None for r in local_table)          # the numbers stay, marked
+    info = json.loads((local_sweep / "sweep.json").read_text())["info"]
+    assert info["not_accepted"] == 2 and info["failed"] == 0 and info["error_threshold"] == 1e-2
+    assert "0 failed, 2 not accepted" in (local_sweep / "sweep.md").read_text()
+    panels = _png_description(local_sweep / "sweep_metrics.png")["panels"]
+    assert all(panel["failed_at"] == [-1.0, -0.5] for panel in panels.values()), panels
+
+
 def test_invalid_point_is_a_row_with_its_error(fmu_dir, tmp_path):
-    rows = sweep_cli(tmp_path, fmu_dir, "--grid", "controller.rbar_e=-50,50,100", "--workers", "1")
+    # rbar_e = 50 (K_e != 0: a stiff loop) is near explicit coupling's limit at 4 us: not accepted, exit 5
+    rows = sweep_cli(tmp_path, fmu_dir, "--grid", "controller.rbar_e=-50,50,100", "--workers", "1", status=5)
     assert [r["controller.rbar_e"] for r in rows] == [-50.0, 50.0, 100.0]
     assert "rbar_e" in rows[0]["status"] and "violates" in rows[0]["status"]
-    assert rows[0]["ise"] is None                               # no metrics for a failed run
-    assert [r["status"] for r in rows[1:]] == ["ok", "ok"]
+    assert rows[0]["ise"] is None and rows[0]["coupling_error"] is None       # no metrics for a failed run
+    assert rows[1]["status"].startswith("not accepted: ") and rows[2]["status"] == "ok"
     assert all(np.isfinite(r["ise"]) for r in rows[1:])
     assert (tmp_path / "sweep.md").is_file() and (tmp_path / "sweep_metrics.png").is_file()
 
@@ -123,7 +153,7 @@ def test_loopback_cluster_gives_the_same_table(local_table, fmu_dir, tmp_path):
         from dask.distributed import Client
         with Client(address, timeout="30s") as client:
             client.wait_for_workers(2, timeout=60)
-        remote = sweep_cli(tmp_path, fmu_dir, "--grid", GRID, "--scheduler", address)
+        remote = sweep_cli(tmp_path, fmu_dir, "--grid", GRID, "--scheduler", address, status=5)
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -250,7 +280,7 @@ def test_runs_are_submitted_in_bounded_batches(fmu_dir):
     assert spy.submitted == spy.returned == 24
     assert 1 <= spy.most <= 2, spy.most                        # IN_FLIGHT_PER_THREAD x 1 worker thread
     assert [r["controller.D_d"] for r in rows] == [r["controller.D_d"] for r in runs]
-    assert all(r["status"] == "ok" for r in rows)
+    assert all(r["status"] == "ok" or r["status"].startswith("not accepted: ") for r in rows)
 
 
 # ---- plots: what each figure shows (its data, also stored in the PNG's metadata) ------------------
@@ -332,8 +362,10 @@ def test_implicit_coupling_lets_a_sweep_keep_the_scenarios_step(local_table, fmu
     import json
 
     out = tmp_path / "implicit"
+    # --error-threshold: at D_d = -1 the run's estimate is 0.056 of p's range (its 11 points), at -0.5 0.022
     code = cli.main(["sweep", SCENARIO, "--stop-time", STOP, "--fmu-dir", str(fmu_dir), "--out", str(out),
-                     "--no-progress", "--no-plots", "--workers", "1", "--grid", GRID, "--coupling", "implicit"])
+                     "--no-progress", "--no-plots", "--workers", "1", "--grid", GRID, "--coupling", "implicit",
+                     "--error-threshold", "0.1"])
     assert code == 0
     rows = read_table(out / "sweep.csv")
     assert [r["status"] for r in rows] == ["ok"] * 3

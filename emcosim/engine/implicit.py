@@ -171,6 +171,7 @@ class Implicit:
         self.kept: dict[float, np.ndarray] = {}   # step -> the latest Jacobian for it (oldest first)
         self.history = History()                # t -> (values, derivatives) of the points before
         self.statistics = Statistics()
+        self.pieces: list[tuple[float, float]] | None = None   # (t, h) of every converged step, while traced (doubling.py)
 
     def save(self) -> dict:
         """What the iteration learns from step to step (Jacobians, scales, mode, histories, statistics): a
@@ -204,6 +205,8 @@ class Implicit:
         try:
             try:
                 self._step(t, h, states)
+                if self.pieces is not None:
+                    self.pieces.append((t, h))
                 return
             except NotConverged:
                 if not halvings:

@@ -451,9 +451,11 @@ def _run_fixed(stepper: Stepper, result: Result, planned: Experiment, progress) 
             row = stepper.row()
             result.append(t, row)
             doubling.observe(n, row)
-            t_next = t_at(n + 1)
+            if doubling.closes(n):
+                doubling.finish(n, t, t_at)
             if doubling.sampled(n):
-                doubling.double(n, t, t_at)
+                doubling.begin(n, t)
+            t_next = t_at(n + 1)
             stepper.step(t, t_next - t)
             if progress is not None and n % every == 0:
                 progress((n + 1) / n_steps)
@@ -462,9 +464,13 @@ def _run_fixed(stepper: Stepper, result: Result, planned: Experiment, progress) 
         row = stepper.row()
         result.append(t_stop, row)
         doubling.observe(n_steps, row)
+        if doubling.closes(n_steps):
+            doubling.finish(n_steps, t_stop, t_at)
     except SimulationError as exc:
         exc.result = result
         raise
+    finally:
+        doubling.close()
     if progress is not None:
         progress(1.0)
 

@@ -165,6 +165,9 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
     run as it finishes, by name: what was computed survives an interruption."""
     out = sys.stderr if out is None else out
     tasks = run_tasks(names, stop_time, decisions)
+    heads = _heads(names, stop_time, decisions)
+    for key in heads:                             # taken from the start of their decision runs, not run
+        del tasks[key]
     jobs = max(1, min(len(tasks), jobs or os.cpu_count() or 1))
     errors: dict = {} if failed is None else failed
     results: dict = {} if finished is None else finished
@@ -172,6 +175,11 @@ def run_paper_scenarios(names: dict[str, str] = PAPER_CASES, stop_time: float | 
         _run_parallel(tasks, fmu_dir, jobs, out, errors, results)
     else:
         _run_serial(tasks, fmu_dir, out, errors, results)
+    for key, (source, horizon) in heads.items():
+        if source in results:
+            results[key] = _head(results[source], horizon)
+        elif source in errors:
+            errors[key] = ScenarioError(f"{key}: taken from its decision run {source}, which failed: {errors[source]}")
     if failed is None and errors:
         raise next(iter(errors.values()))
     runs, walls = {}, {}
@@ -203,6 +211,32 @@ def _task_roles(names: dict[str, str], stop_time: float | None,
         if role in names:
             tasks[decision_role(role)] = (decision_name(names[role], horizon), names[role], horizon)
     return tasks
+
+
+def _heads(names: dict[str, str], stop_time: float | None,
+           decisions: dict[str, float] | None) -> dict[str, tuple[str, float]]:
+    """run name -> (its decision run's name, its horizon) of the runs that are the start of their decision run:
+    the same scenario at the same step (resolving_step) from the same state, so the decision run's rows up to
+    the scenario's horizon are the run's (the error estimate steps aside without changing a row,
+    engine/doubling.py). Only for a full reproduce (stop_time None) and a decision run longer than the
+    scenario's horizon."""
+    if stop_time is not None:
+        return {}
+    out = {}
+    for role, horizon in (decisions or {}).items():
+        if role in names:
+            scenario = read_scenario(SCENARIOS / names[role])
+            if horizon > scenario.stop_time:
+                out[names[role]] = (decision_name(names[role], horizon), float(scenario.stop_time))
+    return out
+
+
+def _head(outcome: tuple[list[str], list[list[float]], float], horizon: float) -> tuple[list[str], list[list[float]], float]:
+    """(columns, rows, wall time) of a run: those of its rows up to `horizon` (the last at most 1e-9 of it past,
+    the grid's rounding), the wall time the decision run's share."""
+    columns, rows, wall = outcome
+    head = [row for row in rows if row[0] <= horizon * (1 + 1e-9)]
+    return columns, head, wall * len(head) / max(1, len(rows))
 
 
 def with_conditions(run: report.Run, scenario) -> report.Run:

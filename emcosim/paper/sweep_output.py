@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.doubling import THRESHOLD
 from .report import finite_or_none
 
 METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
@@ -35,9 +36,9 @@ METRIC_LABELS = {
 
 
 def columns(rows: list[dict]) -> list[str]:
-    """Column order: parameters (as in the runs), metrics, status."""
-    params = [k for k in rows[0] if k not in METRIC_LABELS and k != "status"]
-    return ["run", *params, *METRIC_LABELS, "status"]
+    """Column order: parameters (as in the runs), metrics, the estimated coupling error, status."""
+    params = [k for k in rows[0] if k not in METRIC_LABELS and k not in ("coupling_error", "status")]
+    return ["run", *params, *METRIC_LABELS, "coupling_error", "status"]
 
 
 def csv_cells(row: dict, cols: list[str]) -> list:
@@ -76,7 +77,9 @@ def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
     head = [f"{c} [{units[c]}]" if units.get(c) else
             (f"{c} [{METRIC_LABELS[c][1]}]" if c in METRIC_LABELS else c) for c in cols]
     lines = [f"# Sweep of {info.get('scenario', '')}", "",
-             f"{info.get('runs')} runs, {info.get('failed')} failed, {info.get('workers')} worker(s), "
+             f"{info.get('runs')} runs, {info.get('failed')} failed, {info.get('not_accepted', 0)} not accepted "
+             f"(estimated coupling error above {info.get('error_threshold', THRESHOLD):g} of a variable's range), "
+             f"{info.get('workers')} worker(s), "
              f"{info.get('runs_per_s', float('nan')):.3g} runs/s.", "", _settings(info), "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(_cell(r[c]) for c in cols) + " |" for r in table]
@@ -194,7 +197,7 @@ def _lines(rows, name, values, units, path: Path, title: str, horizon: float | N
                              "failed_at": failed}
     for ax in axes[-1]:
         ax.set_xlabel(_label(name, units))
-    fig.suptitle(title + ("   (dotted: run failed or metric not finite)" if any_failed else ""), fontsize=10)
+    fig.suptitle(title + ("   (dotted: run failed or not accepted, or metric not finite)" if any_failed else ""), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100, metadata=_describe(meta))
     plt.close(fig)

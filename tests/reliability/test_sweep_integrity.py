@@ -59,7 +59,9 @@ def test_interrupted_sweep_keeps_the_finished_runs(fmu_dir, tmp_path, tally):
     assert len(rows) >= 8, rows
     grid = [-1 + k / 39 for k in range(40)]
     for row in rows:
-        assert row["status"] == "ok" and row["controller.D_d"] == pytest.approx(grid[int(row["run"])], rel=1e-12)
+        # near D_d = -1 explicit coupling at 4 us is near its limit: those runs are marked (issue 35), not failed
+        assert row["status"] == "ok" or row["status"].startswith("not accepted: "), row["status"]
+        assert row["controller.D_d"] == pytest.approx(grid[int(row["run"])], rel=1e-12)
         assert row["ise"] > 0
     assert f"{len(rows)} finished runs kept in {partial / 'sweep.csv'}" in err, err
     assert "Traceback" not in err, err
@@ -96,7 +98,7 @@ def test_ctrl_c_on_a_huge_grid_ends_within_seconds_and_keeps_the_rows(fmu_dir, t
     assert proc.returncode == 130 and seconds < 10, (proc.returncode, seconds, err)
     assert "Traceback" not in err and "TimeoutError" not in err, err
     rows = read_table(tmp_path / "sweep.partial" / "sweep.csv")
-    assert len(rows) >= 4 and all(r["status"] == "ok" for r in rows)
+    assert len(rows) >= 4 and all(r["status"] == "ok" or r["status"].startswith("not accepted: ") for r in rows)
     assert f"{len(rows)} finished runs kept in" in err
     tally.add("sweep_integrity", "Ctrl-C on a 90000-run grid", "clean_error")
     tally.measurements["sweep_integrity"]["huge_grid_exit_s"] = round(seconds, 2)

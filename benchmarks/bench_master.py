@@ -23,8 +23,8 @@ For each scenario:
               the loosest rtol whose error is <= 1e-3 (one solve; the search outside the timing); each with
               the pythonfmu FMUs (--fmu-dir) and, in the same rounds, with the native ones (--native-dir,
               default build/native from `build.py --native`; "native ME ..."). Timed without the engine's
-              clocks; the breakdown comes from one more run of each with them (`timing`): the time inside
-              the FMUs' calls and scipy's, the engine's Python the rest of the timed run's best time
+              clocks; the breakdown comes from one more run of each with them (`timing`): its shares inside
+              the FMUs' calls, in scipy and in the engine's Python, applied to the best time
   container   the exported container FMU under fmpy, and
   libcosim    OSP libcosim, both at their own first-order accuracy (they pass no derivatives: a zero-
               order hold, run at ZOH_STEP, the step of our master's zero-order hold that meets 1e-3)
@@ -47,7 +47,7 @@ the must at those steps: only fewer steps or cheaper FMU calls can. Co-simulatio
 <= 1; Model Exchange: must <= 1, goal <= 0.5 (issue 23).
 
     python benchmarks/bench_master.py [--scenarios a,b] [--fmu-dir DIR] [--native-dir DIR] [--engines container,libcosim]
-                                      [--repeat 5]
+                                      [--repeat 5] [--clock wall|cpu]
     python benchmarks/bench_master.py --band [--scenarios a,b]    # error vs tolerance 1e-2 ... 1e-5
 """
 from __future__ import annotations
@@ -89,15 +89,16 @@ ZOH_STEP = {"mems_regulation_Dd0": 1e-5, "mems_regulation_Dd-1": 5e-7, "mems_reg
 
 
 NATIVE = "native "    # the labels of the runs with the native FMUs (build.py --native)
+CLOCK = time.perf_counter   # --clock wall; --clock cpu: time.process_time (this process's CPU time alone)
 REPEAT = 5            # rounds (--repeat); each time the fastest of its rounds: the machine's noise is one-sided
 
 
 def timed(fn):
     """(output, wall time) of one run of fn."""
     gc.collect()          # a full collection inside a run (~20 ms for the loaded FMUs) would be charged to it
-    tic = time.perf_counter()
+    tic = CLOCK()
     out = fn()
-    return out, time.perf_counter() - tic
+    return out, CLOCK() - tic
 
 
 @dataclass
@@ -306,9 +307,10 @@ def _fill_model_exchange(row: dict, best: dict, ref: Truth, runs: dict[str, Call
                          costs: tuple[float, float]) -> None:
     """row["me"]: label -> (time, error, result); row["me_best"][prefix]: the fastest solver's label, for
     the pythonfmu FMUs (prefix "") and the native ones (NATIVE); the breakdown of "ME tol" and the best of
-    each, from one more run with the engine's clocks (`timing`): inside the FMUs' calls (of it, for the
-    pythonfmu FMUs: the models' own Python, `model_costs`), scipy's, and the engine's Python: the rest of
-    the best time."""
+    each, from one more run with the engine's clocks (`timing`, wall time): its shares inside the FMUs' calls
+    (of it, for the pythonfmu FMUs: the models' own Python, `model_costs`), in scipy and in the engine's
+    Python, applied to the best time. The clocks add about 0.3 us per FMU call to that run, charged to the
+    engine's share and a little to the calls'."""
     row["me"], row["me_best"], row["me_breakdown"] = {}, {}, {}
     for label in runs:
         r, seconds = best[label]
@@ -327,9 +329,10 @@ def _fill_model_exchange(row: dict, best: dict, ref: Truth, runs: dict[str, Call
             stats = r.model_exchange
             rows = len(r) * max(1, stats.solves)
             models = stats.rhs * (plant + others) + rows * others if not prefix else math.nan
-            row["me_breakdown"][label] = {"fmu": timing["fmu"], "models": min(models, timing["fmu"]),
-                                          "engine": max(0.0, seconds - timing["fmu"] - timing["solver"]),
-                                          "solver": timing["solver"], "total": seconds, "rhs": stats.rhs,
+            share = seconds / timing["total"]              # the timed run's shares, of the best time
+            fmu, solver = share * timing["fmu"], share * timing["solver"]
+            row["me_breakdown"][label] = {"fmu": fmu, "models": min(models, fmu), "engine": seconds - fmu - solver,
+                                          "solver": solver, "total": seconds, "rhs": stats.rhs,
                                           "steps": stats.steps, "rows": rows, "jacobians": stats.jacobians,
                                           "summary": stats.summary()}
 
@@ -382,7 +385,12 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=REPEAT,
                    help=f"rounds of the monolithic runs (old, its parts, the fair candidates), the fixed "
                         f"and the error-controlled run; each time the fastest of its rounds (default {REPEAT})")
+    p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                   help="what the times are: wall time (default) or this process's CPU time, which other jobs on a "
+                        "shared machine disturb far less (everything measured runs in this process, single-threaded)")
     args = p.parse_args(argv)
+    global CLOCK
+    CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     names = args.scenarios.split(",") if args.scenarios else [c.name for c in paper_scenarios.cases()]
     if args.band:
         cols = ["scenario"] + [f"TOL {t:g}: err (err/TOL) steps time" for t in BAND]

@@ -381,6 +381,15 @@ class _Grid:
     def __getitem__(self, k: int) -> float:
         return self.t0 + k * self.h if k < self.n else self.t_stop
 
+    def before(self, k: int, t_end: float, most: int) -> np.ndarray:
+        """The grid points from the k-th on that lie before t_end, at most `most` of them (the same doubles as
+        __getitem__'s: t0 + k h in IEEE arithmetic)."""
+        m = min(self.size - k, most, max(1, int((t_end - self[k]) / self.h) + 2))
+        times = self.t0 + np.arange(k, k + m) * self.h
+        if k + m == self.size:
+            times[-1] = self.t_stop
+        return times[:int(np.searchsorted(times, t_end))]
+
 
 def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
                progress, solver_steps: bool, next_event: float | None = None, limit: float = MAX_STEPS) -> None:
@@ -523,15 +532,10 @@ def _rows(system: System, result: Result, dense_output: Callable[[], Any], grid:
     while k < grid.size and grid[k] < t_end:
         # the grid points inside the step, up to CHUNK of them interpolated in one call of the dense output
         # (scipy's cost is per call: 3-7 us, as much as the FMUs' calls of a row)
-        times: list[float] = []
-        for j in range(k, min(grid.size, k + CHUNK)):
-            tj = grid[j]
-            if tj >= t_end:
-                break
-            times.append(tj)
+        times = grid.before(k, t_end, CHUNK)
         dense = dense_output() if dense is None else dense
-        states = np.ascontiguousarray(np.asarray(dense(np.array(times))).T)
-        for tk, x in zip(times, states):
+        states = np.ascontiguousarray(np.asarray(dense(times)).T)
+        for tk, x in zip(times.tolist(), states):
             system.set_point(tk, x, record=True)
             result.append(tk, system.row())
         k += len(times)

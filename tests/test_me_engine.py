@@ -251,6 +251,22 @@ def test_buffered_resolution_equals_the_transfers_and_rows_make_only_the_calls_t
             np.testing.assert_array_equal(x, y)
 
 
+def test_only_fmus_that_ask_for_it_get_completed_integrator_step(make):
+    """fmi2CompletedIntegratorStep goes to the FMUs whose completedIntegratorStepNotNeeded is false (the ball),
+    not to those that declare it true (Dahlquist, Gain), as their modelDescription.xml says; fmpy's reader
+    leaves that attribute false for every FMI 2.0 FMU (ode.needs_completed_step)."""
+    import zipfile
+    scenario = make([("b", "BouncingBall"), ("d", "Dahlquist"), ("g", "Gain")], [("d.x", "g.u"), ("g.y", "d.u")])
+    declared = {}
+    for c in scenario.components:
+        with zipfile.ZipFile(c.source) as z:
+            xml = z.read("modelDescription.xml").decode()
+        declared[c.name] = re.search(r'completedIntegratorStepNotNeeded="(\w+)"', xml).group(1)
+    assert declared == {"b": "false", "d": "true", "g": "true"}
+    with system_at(scenario) as system:
+        assert [u.inst.name for u in system.step_reporters] == ["b"]
+
+
 # ---- events ---------------------------------------------------------------------------------------------
 def bounce_times(g: float, e: float, h0: float, t_stop: float) -> list[float]:
     t1 = math.sqrt(2 * h0 / g)

@@ -121,8 +121,7 @@ class System:
         self.n = offset
         self.with_states = [u for u in self.units if u.n > 0]
         self.with_indicators = [u for u in self.units if u.nz > 0]
-        self.step_reporters = [u for u in self.units
-                               if not u.inst.model_description.modelExchange.completedIntegratorStepNotNeeded]
+        self.step_reporters = [u for u in self.units if needs_completed_step(u.inst.model_description)]
         self.scale = np.ones(self.n)
         fed = {c.end_element for c in connections}
         knowing = [u for u in self.units if u.n > 0 or u.inst.name in fed]     # FMUs whose unknowns depend on x
@@ -376,6 +375,19 @@ class System:
                                       f"the simulation at t = {t:.9g} s{last_message(unit.inst)}")
             wanted = wanted or bool(self._enter.value)
         return wanted
+
+
+def needs_completed_step(model_description) -> bool:
+    """Whether the FMU asks for fmi2CompletedIntegratorStep after every step (completedIntegratorStepNotNeeded
+    false or absent). Works around fmpy (0.3.32): for FMI 2.0 its read_model_description stores that attribute
+    inverted as ModelExchange.needsCompletedIntegratorStep and leaves completedIntegratorStepNotNeeded at its
+    default, false, whatever the XML says (checked on build/ and build/native's FMUs, which declare "true":
+    fmpy gave completedIntegratorStepNotNeeded False for all 14). Reading only that field, the engine made
+    every FMU's call after every step: three calls a step for the paper's loops, none of them needed."""
+    me = model_description.modelExchange
+    if hasattr(me, "needsCompletedIntegratorStep"):
+        return bool(me.needsCompletedIntegratorStep)
+    return not me.completedIntegratorStepNotNeeded
 
 
 class _Transfers:

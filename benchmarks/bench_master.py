@@ -29,7 +29,8 @@ For each scenario:
   libcosim    OSP libcosim, both at their own first-order accuracy (they pass no derivatives: a zero-
               order hold, run at ZOH_STEP, the step of our master's zero-order hold that meets 1e-3)
 "rec %": the fair baseline's share that is recording (the dense output and u at the grid), one minus the
-time of the same run without samples, timed in the same rounds.
+time of the same run without samples, timed in the same rounds; "rows %" of the native ME best the same:
+one minus the time of its run without the grid's rows (NO_ROWS), timed in the same rounds.
 Errors: the normalised maximum position error of docs/scenarios.md at each run's communication points (the
 fair baseline's: the fixed-step grid; the old baseline's: its 2001 samples). Diagnostics (errors, eta*) are
 computed outside the timing.
@@ -89,6 +90,7 @@ ZOH_STEP = {"mems_regulation_Dd0": 1e-5, "mems_regulation_Dd-1": 5e-7, "mems_reg
 
 
 NATIVE = "native "    # the labels of the runs with the native FMUs (build.py --native)
+NO_ROWS = " no rows"  # the label of a Model Exchange run without the grid's rows
 CLOCK = time.perf_counter   # --clock wall; --clock cpu: time.process_time (this process's CPU time alone)
 REPEAT = 5            # rounds (--repeat); each time the fastest of its rounds: the machine's noise is one-sided
 
@@ -178,12 +180,14 @@ def monolithic_run(s: Scenario, ref: Truth, scale: np.ndarray) -> Old:
 
 
 # ---- Model Exchange ---------------------------------------------------------------------------------------
-def model_exchange_runs(me: ModelExchangeSimulation, ref: Truth, prefix: str = "") -> dict[str, Callable[..., object]]:
+def model_exchange_runs(me: ModelExchangeSimulation, ref: Truth, prefix: str = "",
+                        rows: bool = False) -> dict[str, Callable[..., object]]:
     """{label: a call}: "ME tol" (tolerance TARGET) and, for each solver, "ME <solver>" at the loosest rtol
     whose error is <= TARGET (found here, outside the timing; the solver left out if none meets it), each
     label after `prefix`. Each call returns the result; call(timing) fills the timing dict too (the engine's
     clocks on: the breakdown's run, not the timed one). They record what the fair baseline records (the
-    plant's states and the controller's u) on the fixed-step run's grid."""
+    plant's states and the controller's u) on the fixed-step run's grid. rows: each solver's run also
+    without the grid (NO_ROWS: a row at the start and the stop time only), its cost of the rows the rest."""
     def run(**kwargs):
         def call(timing: dict | None = None):
             return me.run(record=ME_RECORD, timing=timing, **kwargs)
@@ -194,6 +198,9 @@ def model_exchange_runs(me: ModelExchangeSimulation, ref: Truth, prefix: str = "
             r = run(rtol=rtol, solver=solver)()
             if ref.position_error(r.time, r["plant.q"]) <= TARGET:
                 runs[f"{prefix}ME {solver}"] = run(rtol=rtol, solver=solver)
+                if rows:
+                    horizon = me.scenario.stop_time - me.scenario.start_time
+                    runs[f"{prefix}ME {solver}{NO_ROWS}"] = run(rtol=rtol, solver=solver, step_size=horizon)
                 break
     return runs
 
@@ -247,7 +254,7 @@ def bench(name: str, fmu_dir: Path | None, engines: set[str], repeat: int = REPE
         row["load"] = _load(sim, s)
         me = model_exchange_runs(stack.enter_context(ModelExchangeSimulation(s)), ref)
         if native is not None:
-            me |= model_exchange_runs(stack.enter_context(ModelExchangeSimulation(native)), ref, NATIVE)
+            me |= model_exchange_runs(stack.enter_context(ModelExchangeSimulation(native)), ref, NATIVE, rows=True)
         runs = {"old": old.run, "solve": old.solve, "post": old.post,
                 **{m: c.run for m, c in row["candidates"].items()},
                 **{f"{m} solve": c.solve for m, c in row["candidates"].items()},
@@ -314,10 +321,11 @@ def _fill_model_exchange(row: dict, best: dict, ref: Truth, runs: dict[str, Call
     row["me"], row["me_best"], row["me_breakdown"] = {}, {}, {}
     for label in runs:
         r, seconds = best[label]
-        row["me"][label] = (seconds, ref.position_error(r.time, r["plant.q"]), r)
+        row["me"][label] = (seconds, ref.position_error(r.time, r["plant.q"]) if NO_ROWS not in label else 0.0, r)
     plant, others = costs
     for prefix in ("", NATIVE):
-        solvers = [label for label in runs if label.startswith(f"{prefix}ME ") and label != f"{prefix}ME tol"]
+        solvers = [label for label in runs if label.startswith(f"{prefix}ME ") and label != f"{prefix}ME tol"
+                   and NO_ROWS not in label]
         if solvers:
             row["me_best"][prefix] = min(solvers, key=lambda label: row["me"][label][0])
         for label in [f"{prefix}ME tol"] + ([row["me_best"][prefix]] if solvers else []):
@@ -467,7 +475,7 @@ def _me_cell(row: dict, prefix: str) -> str:
 
 
 ME_COLUMNS = ("scenario", "fair [s]", "ME tol x (err) pythonfmu / native", "ME best x pythonfmu: solver rtol (err)",
-              "ME best x native: solver rtol (err)", "native best: FMU calls / engine / solver x",
+              "ME best x native: solver rtol (err)", "native best: FMU calls / engine / solver x; rows %",
               "native best: steps, rhs, rows, Jacobians; us per evaluation")
 
 
@@ -491,7 +499,9 @@ def _me_row(row: dict) -> list[str]:
         return cells + ["n/a", "n/a"]
     b = row["me_breakdown"][label]
     evaluations = b["rhs"] + b["rows"] + b["steps"] + b["jacobians"]
-    return cells + [f"{b['fmu'] / fair:.2f} / {b['engine'] / fair:.2f} / {b['solver'] / fair:.2f}",
+    bare = row["me"].get(label + NO_ROWS)
+    rows = f"; {100 * (1 - bare[0] / b['total']):.0f} %" if bare else ""
+    return cells + [f"{b['fmu'] / fair:.2f} / {b['engine'] / fair:.2f} / {b['solver'] / fair:.2f}{rows}",
                     f"{b['steps']}, {b['rhs']}, {b['rows']}, {b['jacobians']}; "
                     f"{1e6 * (b['fmu'] + b['engine']) / max(1, evaluations):.1f}"]
 

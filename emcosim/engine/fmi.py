@@ -11,8 +11,8 @@ Works around, second: fmpy's raw functions carry `argtypes`, so ctypes converts 
 its type's `from_param` on every call. `bare` gives the same C function without them (the caller passes
 ctypes objects of the exact C types). Measured on the native maglev plant (build.py --native), 1e5 calls
 each, this project's 2-core machine: fmi2GetDerivatives 0.44 -> 0.21 us, fmi2GetReal of 3 values 0.59 ->
-0.24 us, fmi2SetTime 0.25 -> 0.17 us (a prebuilt c_double); the Model Exchange engine makes 10-20 such
-calls per right-hand side (ode.py).
+0.24 us, fmi2SetTime 0.25 -> 0.17 us (a prebuilt c_double); the Model Exchange engine makes 8-10 such
+calls per evaluation (ode.py).
 """
 from __future__ import annotations
 

@@ -20,12 +20,17 @@ For each scenario:
   ME          Model Exchange (emcosim.engine.model_exchange, the FMUs instantiated once, as for our master):
               "ME tol" with tolerance = 1e-3 (the engine's global-error control: 2-3 solves, LSODA), and
               "ME best", the same rule as the fair baseline: the fastest of LSODA, BDF and Radau, each at
-              the loosest rtol whose error is <= 1e-3 (one solve; the search outside the timing)
+              the loosest rtol whose error is <= 1e-3 (one solve; the search outside the timing); each with
+              the pythonfmu FMUs (--fmu-dir) and, in the same rounds, with the native ones (--native-dir,
+              default build/native from `build.py --native`; "native ME ..."). Timed without the engine's
+              clocks; the breakdown comes from one more run of each with them (`timing`): its shares inside
+              the FMUs' calls, in scipy and in the engine's Python, applied to the best time
   container   the exported container FMU under fmpy, and
   libcosim    OSP libcosim, both at their own first-order accuracy (they pass no derivatives: a zero-
               order hold, run at ZOH_STEP, the step of our master's zero-order hold that meets 1e-3)
 "rec %": the fair baseline's share that is recording (the dense output and u at the grid), one minus the
-time of the same run without samples, timed in the same rounds.
+time of the same run without samples, timed in the same rounds; "rows %" of the native ME best the same:
+one minus the time of its run without the grid's rows (NO_ROWS), timed in the same rounds.
 Errors: the normalised maximum position error of docs/scenarios.md at each run's communication points (the
 fair baseline's: the fixed-step grid; the old baseline's: its 2001 samples). Diagnostics (errors, eta*) are
 computed outside the timing.
@@ -42,13 +47,16 @@ run would cost with a master that took no time at all. Where it exceeds 2, no wo
 the must at those steps: only fewer steps or cheaper FMU calls can. Co-simulation: must every ratio <= 2, goal
 <= 1; Model Exchange: must <= 1, goal <= 0.5 (issue 23).
 
-    python benchmarks/bench_master.py [--scenarios a,b] [--fmu-dir DIR] [--engines container,libcosim] [--repeat 5]
+    python benchmarks/bench_master.py [--scenarios a,b] [--fmu-dir DIR] [--native-dir DIR] [--engines container,libcosim]
+                                      [--repeat 5] [--clock wall|cpu]
     python benchmarks/bench_master.py --band [--scenarios a,b]    # error vs tolerance 1e-2 ... 1e-5
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
+import math
 import sys
 import tempfile
 import time
@@ -81,15 +89,18 @@ ZOH_STEP = {"mems_regulation_Dd0": 1e-5, "mems_regulation_Dd-1": 5e-7, "mems_reg
             "maglev_regulation_prop2": 5e-4}
 
 
+NATIVE = "native "    # the labels of the runs with the native FMUs (build.py --native)
+NO_ROWS = " no rows"  # the label of a Model Exchange run without the grid's rows
+CLOCK = time.perf_counter   # --clock wall; --clock cpu: time.process_time (this process's CPU time alone)
 REPEAT = 5            # rounds (--repeat); each time the fastest of its rounds: the machine's noise is one-sided
 
 
 def timed(fn):
     """(output, wall time) of one run of fn."""
     gc.collect()          # a full collection inside a run (~20 ms for the loaded FMUs) would be charged to it
-    tic = time.perf_counter()
+    tic = CLOCK()
     out = fn()
-    return out, time.perf_counter() - tic
+    return out, CLOCK() - tic
 
 
 @dataclass
@@ -169,22 +180,27 @@ def monolithic_run(s: Scenario, ref: Truth, scale: np.ndarray) -> Old:
 
 
 # ---- Model Exchange ---------------------------------------------------------------------------------------
-def model_exchange_runs(me: ModelExchangeSimulation, ref: Truth) -> dict[str, Callable[[], object]]:
+def model_exchange_runs(me: ModelExchangeSimulation, ref: Truth, prefix: str = "",
+                        rows: bool = False) -> dict[str, Callable[..., object]]:
     """{label: a call}: "ME tol" (tolerance TARGET) and, for each solver, "ME <solver>" at the loosest rtol
-    whose error is <= TARGET (found here, outside the timing; the solver left out if none meets it). Each
-    call returns (the result, its timing dict). They record what the fair baseline records (the plant's states
-    and the controller's u) on the fixed-step run's grid."""
+    whose error is <= TARGET (found here, outside the timing; the solver left out if none meets it), each
+    label after `prefix`. Each call returns the result; call(timing) fills the timing dict too (the engine's
+    clocks on: the breakdown's run, not the timed one). They record what the fair baseline records (the
+    plant's states and the controller's u) on the fixed-step run's grid. rows: each solver's run also
+    without the grid (NO_ROWS: a row at the start and the stop time only), its cost of the rows the rest."""
     def run(**kwargs):
-        def call():
-            timing: dict = {}
-            return me.run(record=ME_RECORD, timing=timing, **kwargs), timing
+        def call(timing: dict | None = None):
+            return me.run(record=ME_RECORD, timing=timing, **kwargs)
         return call
-    runs = {"ME tol": run(tolerance=TARGET)}
+    runs = {f"{prefix}ME tol": run(tolerance=TARGET)}
     for solver in SOLVERS:
         for rtol in RTOLS:
-            r, _ = run(rtol=rtol, solver=solver)()
+            r = run(rtol=rtol, solver=solver)()
             if ref.position_error(r.time, r["plant.q"]) <= TARGET:
-                runs[f"ME {solver}"] = run(rtol=rtol, solver=solver)
+                runs[f"{prefix}ME {solver}"] = run(rtol=rtol, solver=solver)
+                if rows:
+                    horizon = me.scenario.stop_time - me.scenario.start_time
+                    runs[f"{prefix}ME {solver}{NO_ROWS}"] = run(rtol=rtol, solver=solver, step_size=horizon)
                 break
     return runs
 
@@ -223,7 +239,8 @@ def interleaved(runs: dict[str, Callable[[], object]], repeat: int) -> dict[str,
     return best
 
 
-def bench(name: str, fmu_dir: Path | None, engines: set[str], repeat: int = REPEAT) -> dict:
+def bench(name: str, fmu_dir: Path | None, engines: set[str], repeat: int = REPEAT,
+          native_dir: Path | None = None) -> dict:
     s = read_scenario(ROOT / "scenarios" / name, fmu_dir=fmu_dir)
     ref = truth(s, rtol=1e-9)
     row = {"name": name, "h": s.step_size, "coupling": s.coupling or "explicit"}
@@ -231,17 +248,21 @@ def bench(name: str, fmu_dir: Path | None, engines: set[str], repeat: int = REPE
     old = monolithic_run(s, ref, scale)
     row["rtol_old"], row["e_old"] = old.rtol, old.err
     row["candidates"] = fair_candidates(s, ref, scale)
-    with Simulation(s) as sim, ModelExchangeSimulation(s) as me_sim:
+    native = read_scenario(ROOT / "scenarios" / name, fmu_dir=native_dir) if native_dir is not None else None
+    with contextlib.ExitStack() as stack:
+        sim = stack.enter_context(Simulation(s))
         row["load"] = _load(sim, s)
-        me = model_exchange_runs(me_sim, ref)
+        me = model_exchange_runs(stack.enter_context(ModelExchangeSimulation(s)), ref)
+        if native is not None:
+            me |= model_exchange_runs(stack.enter_context(ModelExchangeSimulation(native)), ref, NATIVE, rows=True)
         runs = {"old": old.run, "solve": old.solve, "post": old.post,
                 **{m: c.run for m, c in row["candidates"].items()},
                 **{f"{m} solve": c.solve for m, c in row["candidates"].items()},
                 "fixed": _master(sim), "tol": _master(sim, tolerance=TARGET), **me}
         best = interleaved(runs, repeat)
-    _fill_baselines(row, best)
-    _fill_master(row, best, ref)
-    _fill_model_exchange(row, best, ref, list(me), model_costs(s))
+        _fill_baselines(row, best)
+        _fill_master(row, best, ref)
+        _fill_model_exchange(row, best, ref, me, model_costs(s))
     _other_engines(row, s, ref, engines)
     return row
 
@@ -289,27 +310,39 @@ def _fill_master(row: dict, best: dict, ref: Truth) -> None:
     row["tol_report"] = r.step_control
 
 
-def _fill_model_exchange(row: dict, best: dict, ref: Truth, labels: list[str], costs: tuple[float, float]) -> None:
-    """row["me"]: label -> (time, error, result, timing); "ME best": the fastest solver's; the breakdown of
-    "ME tol" and "ME best": inside the FMUs' calls (of it: the models' own Python, `model_costs`), the
-    engine's Python around them, the solver's."""
-    row["me"] = {}
-    for label in labels:
-        (r, timing), seconds = best[label]
-        row["me"][label] = (seconds, ref.position_error(r.time, r["plant.q"]), r, timing)
-    solvers = [label for label in labels if label != "ME tol"]
-    if solvers:
-        row["me_best"] = min(solvers, key=lambda label: row["me"][label][0])
+def _fill_model_exchange(row: dict, best: dict, ref: Truth, runs: dict[str, Callable[..., object]],
+                         costs: tuple[float, float]) -> None:
+    """row["me"]: label -> (time, error, result); row["me_best"][prefix]: the fastest solver's label, for
+    the pythonfmu FMUs (prefix "") and the native ones (NATIVE); the breakdown of "ME tol" and the best of
+    each, from one more run with the engine's clocks (`timing`, wall time): its shares inside the FMUs' calls
+    (of it, for the pythonfmu FMUs: the models' own Python, `model_costs`), in scipy and in the engine's
+    Python, applied to the best time. The clocks add about 0.3 us per FMU call to that run, charged to the
+    engine's share and a little to the calls'."""
+    row["me"], row["me_best"], row["me_breakdown"] = {}, {}, {}
+    for label in runs:
+        r, seconds = best[label]
+        row["me"][label] = (seconds, ref.position_error(r.time, r["plant.q"]) if NO_ROWS not in label else 0.0, r)
     plant, others = costs
-    row["me_breakdown"] = {}
-    for label in ["ME tol"] + ([row["me_best"]] if solvers else []):
-        seconds, _, r, timing = row["me"][label]
-        stats = r.model_exchange
-        rows = len(r) * max(1, stats.solves)
-        models = stats.rhs * (plant + others) + rows * others
-        row["me_breakdown"][label] = {"fmu": timing["fmu"], "models": min(models, timing["fmu"]),
-                                      "engine": timing["engine"], "solver": timing["solver"], "total": seconds,
-                                      "rhs": stats.rhs, "summary": stats.summary()}
+    for prefix in ("", NATIVE):
+        solvers = [label for label in runs if label.startswith(f"{prefix}ME ") and label != f"{prefix}ME tol"
+                   and NO_ROWS not in label]
+        if solvers:
+            row["me_best"][prefix] = min(solvers, key=lambda label: row["me"][label][0])
+        for label in [f"{prefix}ME tol"] + ([row["me_best"][prefix]] if solvers else []):
+            if label not in runs:
+                continue
+            seconds, _, r = row["me"][label]
+            timing: dict = {}
+            runs[label](timing)
+            stats = r.model_exchange
+            rows = len(r) * max(1, stats.solves)
+            models = stats.rhs * (plant + others) + rows * others if not prefix else math.nan
+            share = seconds / timing["total"]              # the timed run's shares, of the best time
+            fmu, solver = share * timing["fmu"], share * timing["solver"]
+            row["me_breakdown"][label] = {"fmu": fmu, "models": min(models, fmu), "engine": seconds - fmu - solver,
+                                          "solver": solver, "total": seconds, "rhs": stats.rhs,
+                                          "steps": stats.steps, "rows": rows, "jacobians": stats.jacobians,
+                                          "summary": stats.summary()}
 
 
 def _other_engines(row: dict, s: Scenario, ref: Truth, engines: set[str]) -> None:
@@ -352,12 +385,20 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", help="comma-separated names (default: all paper scenarios)")
     p.add_argument("--fmu-dir", type=Path, help="FMU folder (default: the scenarios' build/fmus)")
+    p.add_argument("--native-dir", type=Path, default=ROOT / "build" / "native",
+                   help="the native FMUs' folder (build.py --native; default build/native): the native ME "
+                        "columns; '' leaves them out")
     p.add_argument("--engines", default="container,libcosim", help="which engines besides our master")
     p.add_argument("--band", action="store_true", help="error of --tolerance 1e-2 ... 1e-5 instead of times")
     p.add_argument("--repeat", type=int, default=REPEAT,
                    help=f"rounds of the monolithic runs (old, its parts, the fair candidates), the fixed "
                         f"and the error-controlled run; each time the fastest of its rounds (default {REPEAT})")
+    p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                   help="what the times are: wall time (default) or this process's CPU time, which other jobs on a "
+                        "shared machine disturb far less (everything measured runs in this process, single-threaded)")
     args = p.parse_args(argv)
+    global CLOCK
+    CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     names = args.scenarios.split(",") if args.scenarios else [c.name for c in paper_scenarios.cases()]
     if args.band:
         cols = ["scenario"] + [f"TOL {t:g}: err (err/TOL) steps time" for t in BAND]
@@ -369,11 +410,20 @@ def main(argv=None) -> int:
               "!: outside [TOL/10, 3 TOL])")
         return 0
     engines = set(args.engines.split(",")) if args.engines else set()
+    native_dir = args.native_dir if args.native_dir and str(args.native_dir) not in ("", ".") else None
+    if native_dir is not None and not native_dir.is_dir():
+        print(f"bench_master: no native FMUs in {native_dir} (build.py --native): the native ME columns are left out",
+              file=sys.stderr)
+        native_dir = None
     _header(COLUMNS)
     rows = []
     for name in names:
-        rows.append(bench(name, args.fmu_dir, engines, max(1, args.repeat)))
+        rows.append(bench(name, args.fmu_dir, engines, max(1, args.repeat), native_dir))
         print(" | ".join(_cells(rows[-1])), flush=True)
+    print()
+    _header(ME_COLUMNS)
+    for row in rows:
+        print(" | ".join(_me_row(row)))
     print()
     _header(["scenario"] + [f"{m}: rtol, time [s], rhs/jac, err" for m in SOLVERS] + ["fair / old"])
     for row in rows:
@@ -387,7 +437,7 @@ def main(argv=None) -> int:
 
 COLUMNS = ("scenario", "fair [s] (solver rtol, rhs, err, rec %)", "old [s] (rtol, err, post %, not solve %)",
            "fixed h [s]", "fixed x (err)", "tol 1e-3 x (err, steps)", "old x fixed/tol", "FMUs alone x fixed/tol",
-           "ME x (err): tol 1e-3; best", "load [s]", "container x (err)", "libcosim x (err)",
+           "ME x (err): tol 1e-3; best", "native ME x (err): tol 1e-3; best", "load [s]", "container x (err)", "libcosim x (err)",
            "fixed: us per step plant/ctrl/ref/master", "fixed: estimate's cost %, estimate / true error of q")
 
 
@@ -407,15 +457,53 @@ def _cells(row: dict) -> list[str]:
     ps = row["per_step"]
     breakdown = "/".join(f"{ps.get(k, 0.0) * 1e6:.0f}" for k in ("plant", "controller", "reference", "master"))
     h = f"{row['h']:g}" + (f" ({row['coupling']})" if row["coupling"] != "explicit" else "")
-    shown = ["ME tol"] + ([row["me_best"]] if "me_best" in row else [])
-    me = "; ".join(f"{k[3:]} {row['me'][k][0] / row['t_fair']:.2f} ({row['me'][k][1]:.1e})" for k in shown)
+    me = [_me_cell(row, prefix) for prefix in ("", NATIVE)]
     return [row["name"], fair, f"{m:.3f} ({row['rtol_old']:g}, {row['e_old']:.1e}, {100 * row['t_post'] / m:.0f} %, "
             f"{100 * (1 - row['t_solve'] / m):.0f} %)",
             h, ratio("fixed"), f"{row['t_tol'] / row['t_fair']:.2f} ({row['e_tol']:.1e}, {row['tol_report'].accepted})",
             f"{row['t_fixed'] / m:.2f}/{row['t_tol'] / m:.2f}",
-            f"{row['fmu_fixed'] / row['t_fair']:.2f}/{row['fmu_tol'] / row['t_fair']:.2f}", me, f"{row['load']:.2f}",
+            f"{row['fmu_fixed'] / row['t_fair']:.2f}/{row['fmu_tol'] / row['t_fair']:.2f}", *me, f"{row['load']:.2f}",
             ratio("container"), ratio("libcosim"), breakdown,
             f"{100 * row['estimate'][0]:.1f} %, {row['estimate'][1]:.2g}"]
+
+
+def _me_cell(row: dict, prefix: str) -> str:
+    """"ME tol" and the best ME run of the FMUs of `prefix`, as ratios to the fair baseline (errors)."""
+    shown = [f"{prefix}ME tol"] + ([row["me_best"][prefix]] if prefix in row["me_best"] else [])
+    return "; ".join(f"{k[len(prefix) + 3:]} {row['me'][k][0] / row['t_fair']:.2f} ({row['me'][k][1]:.1e})"
+                     for k in shown if k in row["me"]) or "n/a"
+
+
+ME_COLUMNS = ("scenario", "fair [s]", "ME tol x (err) pythonfmu / native", "ME best x pythonfmu: solver rtol (err)",
+              "ME best x native: solver rtol (err)", "native best: FMU calls / engine / solver x; rows %",
+              "native best: steps, rhs, rows, Jacobians; us per evaluation")
+
+
+def _me_row(row: dict) -> list[str]:
+    """One line of the Model Exchange table: both kinds of FMUs side by side, the native best's breakdown
+    and its evaluations (right-hand sides, rows, the indicators at each step's end, Jacobians)."""
+    fair = row["t_fair"]
+
+    def ratio(label: str) -> str:
+        if label not in row["me"]:
+            return "n/a"
+        seconds, err, r = row["me"][label]
+        return f"{seconds / fair:.2f} ({err:.1e})"
+
+    def best(prefix: str) -> str:
+        label = row["me_best"].get(prefix)
+        return f"{label[len(prefix) + 3:]} {row['me'][label][2].model_exchange.rtol:g}: {ratio(label)}" if label else "n/a"
+    cells = [row["name"], f"{fair:.3f}", f"{ratio('ME tol')} / {ratio(NATIVE + 'ME tol')}", best(""), best(NATIVE)]
+    label = row["me_best"].get(NATIVE)
+    if label is None:
+        return cells + ["n/a", "n/a"]
+    b = row["me_breakdown"][label]
+    evaluations = b["rhs"] + b["rows"] + b["steps"] + b["jacobians"]
+    bare = row["me"].get(label + NO_ROWS)
+    rows = f"; {100 * (1 - bare[0] / b['total']):.0f} %" if bare else ""
+    return cells + [f"{b['fmu'] / fair:.2f} / {b['engine'] / fair:.2f} / {b['solver'] / fair:.2f}{rows}",
+                    f"{b['steps']}, {b['rhs']}, {b['rows']}, {b['jacobians']}; "
+                    f"{1e6 * (b['fmu'] + b['engine']) / max(1, evaluations):.1f}"]
 
 
 def _candidate(row: dict, method: str) -> str:
@@ -449,8 +537,9 @@ def _me_verdict(row: dict) -> str:
     for label, b in row["me_breakdown"].items():
         ratio = b["total"] / fair
         verdict = "meets the goal (<= 0.5)" if ratio <= 0.5 else ("meets the must (<= 1)" if ratio <= 1 else "MISSES 1x")
-        parts.append(f"{label} {ratio:.2f}x, {verdict}: FMU calls {b['fmu'] / fair:.2f}x (the models' own Python "
-                     f"about {b['models'] / fair:.2f}x of it), engine {b['engine'] / fair:.2f}x, solver "
+        models = "" if math.isnan(b["models"]) else f" (the models' own Python about {b['models'] / fair:.2f}x of it)"
+        parts.append(f"{label} {ratio:.2f}x, {verdict}: FMU calls {b['fmu'] / fair:.2f}x{models}, engine "
+                     f"{b['engine'] / fair:.2f}x, solver "
                      f"{b['solver'] / fair:.2f}x; {b['rhs']} right-hand sides, {1e6 * b['total'] / max(1, b['rhs']):.0f} "
                      f"us per right-hand side in all [{b['summary']}]")
     return "Model Exchange: " + "; ".join(parts)

@@ -212,6 +212,61 @@ def test_jacobian_through_factors_and_a_feedthrough_chain(make):
                                    rtol=1e-14)
 
 
+def test_buffered_resolution_equals_the_transfers_and_rows_make_only_the_calls_they_need(make):
+    """The chain of the test above resolved through the numpy slot buffer (ode._Buffers: gets into it, sets
+    from it by address, the transformed ones gathered) and through the plan's transfers (plan.resolve_values,
+    the general path): the same right-hand sides, Jacobians and rows, bit for bit, at points the solver
+    would visit, and again at a point already set. Recording d1.x, g1.y and d2.u, a row leaves out the get
+    of d2.x and the set of d1.u (d1.x is read before it, and no recorded value needs d2.x): 2 of 8 calls."""
+    p = {"d1": {"a": -0.3, "b": 0.8, "x0": 1.2, "nominal": 2.0}, "d2": {"a": -2.0, "b": 1.7, "x0": -0.4, "nominal": 0.5},
+         "g1": {"k": 3.0}, "g2": {"k": -1.25}}
+    scenario = make([("d1", "Dahlquist"), ("g1", "Gain"), ("g2", "Gain"), ("d2", "Dahlquist")],
+                    [("d1.x", "g1.u", 2.5, 0.3), ("g1.y", "g2.u"), ("g2.y", "d2.u", -0.7), ("d2.x", "d1.u", 1.5)], p)
+    points = [(0.3, np.array([0.7, -1.9])), (0.4, np.array([-0.2, 0.05])), (0.4, np.array([-0.2, 0.05])),
+              (0.5, np.array([1e3, 3.0]))]
+    seen = []
+    for buffered in (True, False):
+        with me.ModelExchangeSimulation(scenario) as sim:
+            plan = make_plan(scenario, sim.instances, sim.connections, ["d1.x", "g1.y", "d2.u"])
+            system = ode.System(scenario, sim.instances, sim.connections, plan, buffered=buffered)
+            system.statistics = ode.Statistics("BDF", 1e-6)
+            me.initialize(system, binding.parameter_values(scenario, sim.instances, {}),
+                          experiment(scenario, RunOptions(interface_type="ModelExchange")), 1e-6)
+            values = []
+            for t, xi in points:
+                system.set_point(t, xi, record=True)
+                values.append((system.rhs(t, xi), system.jacobian(t, xi), system.row()))
+                system.set_point(t + 0.01, xi + 1.0, record=True)
+                values.append(system.row())
+            seen.append(values)
+            if buffered:
+                assert isinstance(system.values, ode._Buffers)
+                # steps: the calls, and before each transformed set its gather
+                assert [(step[3].inst.name, step[3].getter) for step in system.values.row_steps] == [
+                    ("d1", True), ("g1", False), ("g1", False), ("g1", True), ("g2", False), ("g2", True),
+                    ("d2", False), ("d2", False)]
+                assert len(system.values.connected) == 11
+    for a, b in zip(*seen):
+        for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_only_fmus_that_ask_for_it_get_completed_integrator_step(make):
+    """fmi2CompletedIntegratorStep goes to the FMUs whose completedIntegratorStepNotNeeded is false (the ball),
+    not to those that declare it true (Dahlquist, Gain), as their modelDescription.xml says; fmpy's reader
+    leaves that attribute false for every FMI 2.0 FMU (ode.needs_completed_step)."""
+    import zipfile
+    scenario = make([("b", "BouncingBall"), ("d", "Dahlquist"), ("g", "Gain")], [("d.x", "g.u"), ("g.y", "d.u")])
+    declared = {}
+    for c in scenario.components:
+        with zipfile.ZipFile(c.source) as z:
+            xml = z.read("modelDescription.xml").decode()
+        declared[c.name] = re.search(r'completedIntegratorStepNotNeeded="(\w+)"', xml).group(1)
+    assert declared == {"b": "false", "d": "true", "g": "true"}
+    with system_at(scenario) as system:
+        assert [u.inst.name for u in system.step_reporters] == ["b"]
+
+
 # ---- events ---------------------------------------------------------------------------------------------
 def bounce_times(g: float, e: float, h0: float, t_stop: float) -> list[float]:
     t1 = math.sqrt(2 * h0 / g)

@@ -49,6 +49,7 @@ SOLVERS = {"LSODA": LSODA, "BDF": BDF, "Radau": Radau}
 DEFAULT_SOLVER = "LSODA"
 DEFAULT_TOLERANCE = 1e-6          # the solver's rtol when the run asks for neither rtol nor a tolerance
 MAX_EVENT_ITERATIONS = 100        # fmi2NewDiscreteStates rounds of one event
+CHUNK = 256                       # grid points taken from the dense output at once (memory stays bounded)
 
 
 class RunLimit(SimulationError):
@@ -98,6 +99,7 @@ class ModelExchangeSimulation:
         self._call = call or (lambda fn: fn())
         self._workdirs: list[str] = []
         self._plans: dict[tuple | None, Plan] = {}
+        self._timed = False
         self.instances = binding.load(scenario, model_exchange=True)
         self.connections = binding.check_connections(scenario, self.instances)
         try:
@@ -140,6 +142,7 @@ class ModelExchangeSimulation:
                        sink: ResultFile | None = None) -> Result:
         parameters = binding.parameter_values(self.scenario, self.instances, start_values or {})
         name = options.solver or DEFAULT_SOLVER
+        self._timed = timing is not None                 # the clocks of the breakdown (ode.System's timed)
         tic = time.perf_counter()
         limit = options.max_steps
         if options.tolerance is None:
@@ -219,7 +222,7 @@ class ModelExchangeSimulation:
         plan = self._plans[key]
         for transfer in transfers(plan):
             transfer.elapsed = 0.0
-        system = System(self.scenario, self.instances, self.connections, plan)
+        system = System(self.scenario, self.instances, self.connections, plan, timed=self._timed)
         if sink is not None:
             sink.rewind()
         notes = binding.model_differences(self.scenario, self.instances, parameters)
@@ -378,6 +381,15 @@ class _Grid:
     def __getitem__(self, k: int) -> float:
         return self.t0 + k * self.h if k < self.n else self.t_stop
 
+    def before(self, k: int, t_end: float, most: int) -> np.ndarray:
+        """The grid points from the k-th on that lie before t_end, at most `most` of them (the same doubles as
+        __getitem__'s: t0 + k h in IEEE arithmetic)."""
+        m = min(self.size - k, most, max(1, int((t_end - self[k]) / self.h) + 2))
+        times = self.t0 + np.arange(k, k + m) * self.h
+        if k + m == self.size:
+            times[-1] = self.t_stop
+        return times[:int(np.searchsorted(times, t_end))]
+
 
 def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
                progress, solver_steps: bool, next_event: float | None = None, limit: float = MAX_STEPS) -> None:
@@ -392,6 +404,7 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
     stalled = 0                                                 # state events in a row at one time
     jac = system.jacobian if system.jacobian_plan is not None else None
     z = system.indicators(t, xi) if system.with_indicators else None
+    above = None if z is None else (z > 0).tolist()
     every = max(1, n_rows // 200)
     while t < t_stop:
         bound = t_stop if next_event is None else min(t_stop, next_event)
@@ -414,12 +427,15 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
                 z_new = system.indicators(t_new, x_new)
                 # a change of domain, z > 0 or z <= 0 (FMI 2.0 section 3.1); an indicator at exactly 0 where
                 # the step starts (an FMU resets a state to its boundary at an event: a ball at h = 0) takes
-                # its domain from where it goes, so leaving 0 is no event
-                crossed = np.flatnonzero(((z_new > 0) != (z > 0)) & (z != 0))
-                if crossed.size:
-                    dense = solver.dense_output()
-                    event_at = min(_locate(system, dense, solver.t_old, t_new, int(i)) for i in crossed)
-                z = z_new
+                # its domain from where it goes, so leaving 0 is no event. (The domains compared as lists
+                # first: numpy's operations on a few indicators cost more than the rest of the step's check.)
+                above_new = [v > 0 for v in z_new.tolist()]
+                if above_new != above:
+                    crossed = np.flatnonzero(((z_new > 0) != (z > 0)) & (z != 0))
+                    if crossed.size:
+                        dense = solver.dense_output()
+                        event_at = min(_locate(system, dense, solver.t_old, t_new, int(i)) for i in crossed)
+                z, above = z_new, above_new
             if event_at is None and system.completed_step(t_new, x_new):
                 event_at = t_new
             if event_at is not None:
@@ -430,17 +446,18 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
                                           "event does not move out of its domain)")
                 dense = solver.dense_output()
                 x_event = dense(event_at) if event_at < t_new else x_new
-                k = _record(system, result, dense, grid, k, event_at, solver_steps, x_event, before_event=True)
+                k = _record(system, result, lambda: dense, grid, k, event_at, solver_steps, x_event, before_event=True)
                 system.set_point(event_at, x_event)
                 system.statistics.events += 1
                 changed, next_event = system.event(event_at)
                 t = event_at
                 xi = system.states() / system.scale if changed else x_event
                 z = system.indicators(t, xi) if system.with_indicators else None
+                above = None if z is None else (z > 0).tolist()
                 restart = True
                 continue
             time_event = next_event is not None and t_new >= next_event
-            k = _record(system, result, solver.dense_output(), grid, k, t_new, solver_steps, x_new, time_event)
+            k = _record(system, result, solver.dense_output, grid, k, t_new, solver_steps, x_new, time_event)
             t, xi = t_new, x_new
             if progress is not None and system.statistics.steps % every == 0:
                 progress((t - t0) / (t_stop - t0))
@@ -490,28 +507,40 @@ def _locate(system: System, dense, t_a: float, t_b: float, i: int) -> float:
     return t
 
 
-def _record(system: System, result: Result, dense, grid: _Grid, k: int, t_end: float, solver_steps: bool,
-            x_end: np.ndarray, before_event: bool = False) -> int:
-    """The rows up to t_end: the grid points (from the dense output), or the step's end (solver_steps).
-    before_event: an event follows at t_end, so a grid point at t_end waits for the values after it (as a
-    Co-Simulation step to t_end gives them, and fmpy records them)."""
+def _record(system: System, result: Result, dense_output: Callable[[], Any], grid: _Grid, k: int, t_end: float,
+            solver_steps: bool, x_end: np.ndarray, before_event: bool = False) -> int:
+    """The rows up to t_end: the grid points (from the dense output, `dense_output()`, made only where a
+    grid point falls inside the step), or the step's end (solver_steps). before_event: an event follows at
+    t_end, so a grid point at t_end waits for the values after it (as a Co-Simulation step to t_end gives
+    them, and fmpy records them)."""
+    if not system.timed:
+        return _rows(system, result, dense_output, grid, k, t_end, solver_steps, x_end, before_event)
     tic = time.perf_counter()
     try:
-        return _rows(system, result, dense, grid, k, t_end, solver_steps, x_end, before_event)
+        return _rows(system, result, dense_output, grid, k, t_end, solver_steps, x_end, before_event)
     finally:
         system.engine_time += time.perf_counter() - tic
 
 
-def _rows(system: System, result: Result, dense, grid: _Grid, k: int, t_end: float, solver_steps: bool,
-          x_end: np.ndarray, before_event: bool) -> int:
+def _rows(system: System, result: Result, dense_output: Callable[[], Any], grid: _Grid, k: int, t_end: float,
+          solver_steps: bool, x_end: np.ndarray, before_event: bool) -> int:
     if solver_steps:
         system.set_point(t_end, x_end, record=True)
         result.append(t_end, system.row())
         return k
-    while k < grid.size and (grid[k] < t_end or grid[k] == t_end and not before_event):
-        tk = grid[k]
-        x = x_end if tk >= t_end else dense(tk)
-        system.set_point(tk, x, record=True)
-        result.append(tk, system.row())
+    dense = None
+    while k < grid.size and grid[k] < t_end:
+        # the grid points inside the step, up to CHUNK of them interpolated in one call of the dense output
+        # (scipy's cost is per call: 3-7 us, as much as the FMUs' calls of a row)
+        times = grid.before(k, t_end, CHUNK)
+        dense = dense_output() if dense is None else dense
+        states = np.ascontiguousarray(np.asarray(dense(times)).T)
+        for tk, x in zip(times.tolist(), states):
+            system.set_point(tk, x, record=True)
+            result.append(tk, system.row())
+        k += len(times)
+    if k < grid.size and grid[k] == t_end and not before_event:
+        system.set_point(t_end, x_end, record=True)
+        result.append(t_end, system.row())
         k += 1
     return k

@@ -117,11 +117,13 @@ static int all_finite(const double *v, size_t n)
     return 1;
 }
 
-/* the parameters' and gains' conditions and the controller's construction checks (components.closed_loop:
-   R_e_bar > 0, k_c > 0, eq. pHcondition); for regulation, the constant reference's feasibility */
+/* the parameters' and gains' conditions and the controller's construction checks (emc_ctrl_check:
+   components.closed_loop); for regulation, the constant reference's feasibility */
 static fmi2Status check_design(emc_instance *c, const char *function, const emc_data *d)
 {
-    double cond[4], ref[2];
+    double u[EMC_N_OUTPUTS];
+    char why[EMC_MESSAGE / 2];
+    const char *reason;
     int bad = emc_check_parameters(d->par);
     if (bad >= 0)
         return fail(c, fmi2Error, "%s: parameter %s = %.17g violates %s %s (finite, 1e-100 <= |value| <= 1e100 unless 0)",
@@ -130,41 +132,30 @@ static fmi2Status check_design(emc_instance *c, const char *function, const emc_
     if (bad >= 0)
         return fail(c, fmi2Error, "%s: parameter %s = %.17g violates %s %s (finite, 1e-100 <= |value| <= 1e100 unless 0)",
                     function, EMC_GAIN_NAMES[bad], d->gain[bad], EMC_GAIN_NAMES[bad], EMC_GAIN_CONDITIONS[bad]);
-    emc_ctrl_conditions(d->par, d->gain, d->in, cond);
-    if (!(cond[0] > 0.0))
-        return fail(c, fmi2Error, "%s: R_e_bar = %.6g violates R_e_bar = R_e + K_e > 0 (eq. barRe)", function, cond[0]);
-    if (EMC_ASK_K_C && !(cond[1] > 0.0))
-        return fail(c, fmi2Error, "%s: k_c = %.6g violates k_c > 0", function, cond[1]);
-    if ((EMC_STRICT_PH == 1 && !(cond[2] > 0.0))
-        || (EMC_STRICT_PH == 0 && !(cond[2] >= -1e-12 * fmax(1.0, fabs(cond[3])))))
-        return fail(c, fmi2Error, "%s: D_d violates the pH condition (eq. pHcondition) R_m - 1/4 D_d^T R_e_bar^-1 D_d "
-                    "%s 0 (it is %.3g)", function, EMC_STRICT_PH == 1 ? ">" : ">=", cond[2]);
-    if (!EMC_TRACKING) {
-        emc_ctrl_reference(d->par, d->gain, d->in, ref);
-        if (!(ref[0] > 0.0) || !(ref[1] > 0.0))
-            return fail(c, fmi2Error, "%s: the set point q_d is not feasible (Definition 1: %s)", function,
-                        !(ref[0] > 0.0) ? "q_d is outside the domain" : "no real x_e_d balances the force");
-    }
+    if (emc_ctrl_check(d->par, d->gain, why, sizeof why) != 0) return fail(c, fmi2Error, "%s: %s", function, why);
+    if (!EMC_TRACKING && (reason = emc_ctrl_law(d->par, d->gain, d->in, u, NULL)) != NULL)
+        return fail(c, fmi2Error, "%s: the set point q_d is not feasible (Definition 1: %s)", function, reason);
     return fmi2OK;
 }
 
-/* u at the current inputs: fmi2OK, or `status` with one log line (never NaN) */
-static fmi2Status compute_u(emc_instance *c, const char *function, fmi2Status status, double *u)
+/* u (EMC_N_OUTPUTS) and, if du is not NULL, du/d inputs at the current inputs: fmi2OK, or `status` with one log
+   line (never NaN) */
+static fmi2Status compute_u(emc_instance *c, const char *function, fmi2Status status, double *u, double *du)
 {
-    double ref[2];
+    const char *reason;
     int i;
     for (i = 0; i < EMC_NI; i++)
         if (!isfinite(c->d.in[i]))
             return fail(c, status, "%s: input %s = %g is not finite", function, EMC_INPUT_NAMES[i], c->d.in[i]);
     if (!(c->d.mode & M_INITIALIZED) && check_design(c, function, &c->d) != fmi2OK)
         return status;
-    emc_ctrl_reference(c->d.par, c->d.gain, c->d.in, ref);
-    if (!(ref[0] > 0.0) || !(ref[1] > 0.0))
+    reason = emc_ctrl_law(c->d.par, c->d.gain, c->d.in, u, du);
+    if (reason != NULL)
         return fail(c, status, "%s at t = %.9g s: the reference is not feasible (Definition 1: %s)", function, c->d.time,
-                    !(ref[0] > 0.0) ? "q* is outside the domain" : "no real x_e* balances the force the reference needs");
-    emc_ctrl_u(c->d.par, c->d.gain, c->d.in, u);
-    if (!isfinite(*u))
-        return fail(c, status, "%s at t = %.9g s: u = %g is not finite for these inputs", function, c->d.time, *u);
+                    reason);
+    for (i = 0; i < EMC_N_OUTPUTS; i++)
+        if (!isfinite(u[i]))
+            return fail(c, status, "%s at t = %.9g s: u = %g is not finite for these inputs", function, c->d.time, u[i]);
     return fmi2OK;
 }
 
@@ -302,6 +293,8 @@ static fmi2Status check_references(emc_instance *c, const char *function, const 
 fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
 {
     size_t i;
+    double u[EMC_N_OUTPUTS];
+    int computed = 0;
     ENTER("fmi2GetReal", M_INITIALIZATION | M_INITIALIZED);
     if (check_references(c, "fmi2GetReal", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
@@ -311,7 +304,9 @@ fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueReference vr[], s
         case EMC_C_GAIN: value[i] = c->d.gain[v->index]; break;
         case EMC_C_INPUT: value[i] = c->d.in[v->index]; break;
         case EMC_C_OUTPUT:
-            if (compute_u(c, "fmi2GetReal", fmi2Error, &value[i]) != fmi2OK) return fmi2Error;
+            if (!computed && compute_u(c, "fmi2GetReal", fmi2Error, u, NULL) != fmi2OK) return fmi2Error;
+            computed = 1;
+            value[i] = u[v->index];
             break;
         default:
             return fail(c, fmi2Error, "fmi2GetReal: %s is an Integer variable", v->name);
@@ -498,13 +493,15 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component component, const fmi2Byte seria
 /* ---- derivatives: du/d inputs from the symbolic Jacobian (components.laws) ------------------------- */
 static fmi2Status du_along(emc_instance *c, const char *function, const double *direction, double *out)
 {
-    double J[EMC_NI], u;
-    int i;
-    if (compute_u(c, function, fmi2Error, &u) != fmi2OK) return fmi2Error;
-    emc_ctrl_du(c->d.par, c->d.gain, c->d.in, J);
-    *out = 0.0;
-    for (i = 0; i < EMC_NI; i++) *out += J[i] * direction[i];
-    if (!isfinite(*out)) return fail(c, fmi2Error, "%s at t = %.9g s: the derivative of u is not finite", function, c->d.time);
+    double J[EMC_N_OUTPUTS * EMC_NI], u[EMC_N_OUTPUTS];
+    int i, k;
+    if (compute_u(c, function, fmi2Error, u, J) != fmi2OK) return fmi2Error;
+    for (k = 0; k < EMC_N_OUTPUTS; k++) {
+        out[k] = 0.0;
+        for (i = 0; i < EMC_NI; i++) out[k] += J[k * EMC_NI + i] * direction[i];
+        if (!isfinite(out[k]))
+            return fail(c, fmi2Error, "%s at t = %.9g s: the derivative of u is not finite", function, c->d.time);
+    }
     return fmi2OK;
 }
 
@@ -512,7 +509,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component component, const fmi2Value
                                         const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[])
 {
-    double v[EMC_NI], d;
+    double v[EMC_NI], d[EMC_N_OUTPUTS];
     size_t i;
     ENTER("fmi2GetDirectionalDerivative", M_INITIALIZATION | M_INITIALIZED);
     if (check_references(c, "fmi2GetDirectionalDerivative", vUnknown_ref, nUnknown, dvUnknown) != fmi2OK
@@ -532,8 +529,8 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component component, const fmi2Value
             return fail(c, fmi2Error, "fmi2GetDirectionalDerivative: %s is not an unknown (an output)",
                         EMC_VARIABLES[vUnknown_ref[i]].name);
     if (nUnknown == 0) return fmi2OK;
-    if (du_along(c, "fmi2GetDirectionalDerivative", v, &d) != fmi2OK) return fmi2Error;
-    for (i = 0; i < nUnknown; i++) dvUnknown[i] = d;
+    if (du_along(c, "fmi2GetDirectionalDerivative", v, d) != fmi2OK) return fmi2Error;
+    for (i = 0; i < nUnknown; i++) dvUnknown[i] = d[EMC_VARIABLES[vUnknown_ref[i]].index];
     return fmi2OK;
 }
 
@@ -565,7 +562,7 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component component, const fmi2Value
                                         const fmi2Integer order[], fmi2Real value[])
 {
     size_t i;
-    double d;
+    double d[EMC_N_OUTPUTS];
     ENTER("fmi2GetRealOutputDerivatives", M_INITIALIZATION | M_STEP | M_TERMINATED);
     ONLY("fmi2GetRealOutputDerivatives", fmi2CoSimulation);
     if (check_references(c, "fmi2GetRealOutputDerivatives", vr, nvr, value) != fmi2OK) return fmi2Error;
@@ -578,15 +575,15 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component component, const fmi2Value
                         EMC_VARIABLES[vr[i]].name);
     }
     if (nvr == 0) return fmi2OK;
-    if (du_along(c, "fmi2GetRealOutputDerivatives", c->d.rate, &d) != fmi2OK) return fmi2Error;
-    for (i = 0; i < nvr; i++) value[i] = d;
+    if (du_along(c, "fmi2GetRealOutputDerivatives", c->d.rate, d) != fmi2OK) return fmi2Error;
+    for (i = 0; i < nvr; i++) value[i] = d[EMC_VARIABLES[vr[i]].index];
     return fmi2OK;
 }
 
 fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
-    double u, scale;
+    double u[EMC_N_OUTPUTS], scale;
     char where[64];
     ENTER("fmi2DoStep", M_STEP);
     ONLY("fmi2DoStep", fmi2CoSimulation);
@@ -599,7 +596,7 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
         return fail(c, fmi2Error, "fmi2DoStep: currentCommunicationPoint = %.17g s is not this FMU's time %.17g s",
                     currentCommunicationPoint, c->d.time);
     snprintf(where, sizeof where, "fmi2DoStep");
-    if (compute_u(c, where, fmi2Discard, &u) != fmi2OK) return fmi2Discard;
+    if (compute_u(c, where, fmi2Discard, u, NULL) != fmi2OK) return fmi2Discard;
     memset(c->d.rate, 0, sizeof c->d.rate);     /* set again by the master for the next step */
     c->d.time = currentCommunicationPoint + communicationStepSize;
     return fmi2OK;

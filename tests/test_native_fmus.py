@@ -691,6 +691,49 @@ def test_example_controllers_equal_their_twins(example_fmus, name) -> None:
         assert_controller_equals_the_twin(native / f"{identifier}.fmu", twin / f"{identifier}.fmu", identifier)
 
 
+@pytest.mark.slow      # about 15 s: sympy and gcc for a plant whose M depends on q
+def test_variable_mass_controllers_equal_the_python_laws(tmp_path: Path) -> None:
+    """A bar whose mass matrix depends on the tilt (tests/test_described_plants.VARIABLE_MASS: M(q) with n_m = n_e = 2):
+    its native Proposition 2 and Theorem 3 against the device's numpy laws (what the pythonfmu twin computes:
+    Controller.u and its complex step Controller.u_derivative) at random inputs, to 1e-12: p* = M(q*) q*' and
+    F* with the dM/dt and dM^-1/dq terms (components.laws.force_jet), x_e* by Newton."""
+    from components.ph_plant import Jet
+    from emcosim.devices import registry
+    from fmus.native_build import build_native_description_fmus
+    from tests.test_described_plants import VARIABLE_MASS
+
+    toml = tmp_path / "variable_mass.toml"
+    toml.write_text(VARIABLE_MASS)
+    desc, _, device = registry.load(toml)
+    assert not desc.constant_mass
+    designs = sorted(device.designs)
+    assert designs == ["Proposition2", "Theorem3"]
+    paths = build_native_description_fmus(toml, designs, tmp_path / "fmus")
+    rng = np.random.default_rng(11)
+    n, m = len(device.states), device.n_m
+    for design in designs:
+        identifier = device.controller_identifier(design)
+        fmu, vr = slave(paths[identifier], identifier)
+        variables = read_model_description(str(paths[identifier])).modelVariables
+        inputs = [v.name for v in variables if v.causality == "input"]
+        outputs = [vr[v.name] for v in variables if v.causality == "output"]
+        controller = device.controller(design)
+        x0 = np.array(fmu.getReal([vr[i] for i in inputs]))
+        scale = np.where(x0 != 0, np.abs(x0), 1e-3 * np.max(np.abs(x0)))
+        for _ in range(10):
+            x = x0 + rng.uniform(-0.1, 0.1, len(x0)) * scale
+            fmu.setReal([vr[i] for i in inputs], list(x))
+            jet = Jet(*np.reshape(x[n:], (4, m))) if controller.tracking else None
+            want = [*controller.u(x[:n], jet)]
+            got = list(fmu.getReal(outputs))
+            for j, name in enumerate(inputs):
+                want += list(controller.u_derivative(list(x), list(np.eye(len(x))[j])))
+                got += fmu.getDirectionalDerivative(outputs, [vr[name]], [1.0])
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * max(np.max(np.abs(want[:len(outputs)])), 1.0))
+        fmu.terminate()
+        fmu.freeInstance()
+
+
 def _monolithic_loop(scenario, device):
     """The example scenario's closed loop from its .ssv values (components.catalog knows the device once its
     description is registered): the controller, the initial state, the stacked references (one per position)."""

@@ -271,6 +271,13 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
     names = tuple(p.name for p in gain_parameters)
     family, tracking = FAMILY[design], TRACKING[design]
     m, e = desc.n_m, desc.n_e
+    rule = desc.operating_point
+    if e > m and (rule is None or rule.kind != "bias"):
+        raise ValueError(f"{desc.source}: the operating point {'least_energy (the default)' if rule is None else rule.kind} "
+                         "of n_e > n_m has no native form yet (its port choice is a linear program); a bias has")
+    if e < m:
+        raise ValueError(f"{desc.source}: n_e = {e} < n_m = {m}: the force balance of Definition 1 is overdetermined "
+                         "(the pythonfmu controller has no feasible reference either)")
     n = 2 * m + e
     G = _design_gains(desc, design, names)
     weight = "W" if family == "c1" else "k_c"
@@ -296,10 +303,7 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
                                         "the constant reference jet (q_d, 0, 0, 0) of regulation"))
     w_ref = CWriter(E, [par, gain, ("jet", "J_", jet)])
     if (m == 1 and e == 1 and desc.constant_mass) or e > m:
-        try:
-            R = closed_reference(desc)
-        except ValueError as exc:
-            raise ValueError(f"{exc}; the least-energy and least-input rules have no native form yet") from None
+        R = closed_reference(desc)
         kind, n_conditions = "closed", len(R.conditions)
         functions.append(w_ref.function("ctrl_feasibility", [R.margin, *R.F, *R.conditions],
                                         "(margin of q* to the domain's boundary, F*, what must be > 0: Definition 1)"))
@@ -307,7 +311,7 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
         if tracking:
             functions.append(w_ref.function("ctrl_dstate", [s.diff(j) for s in R.state for j in jet],
                                             "d(q*, p*, x_e*, x_e*') / d jet (row-major)"))
-    elif e == m:
+    else:
         N = newton_reference(desc)
         kind, n_conditions = "newton", 0
         functions.append(w_ref.function("ctrl_force", [N.margin, *N.F, *(x for D in N.dPsi for x in D)],
@@ -318,9 +322,6 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
             functions.append(w_x.function(
                 "ctrl_sens", [*N.R_1.jacobian(jet), *N.R_2.jacobian(jet), *N.R_2.jacobian(N.x), *N.p.jacobian(jet)],
                 "(dR_1/d jet, dR_2/d jet, dR_2/d x_e*, dp*/d jet), row-major: the implicit function theorem"))
-    else:
-        raise ValueError(f"{desc.source}: n_e = {e} < n_m = {m}: the force balance of Definition 1 is overdetermined "
-                         "(the pythonfmu controller has no feasible reference either)")
     Rs = (G["R_e_bar"] + G["R_e_bar"].T) / 2
     check_weight = not (weight == "W" and G["W"] == sympy.eye(e))
     S = desc.R_m - G["D_d"].T * Rs.inv() * G["D_d"] / 4 if STRICT_PH[design] >= 0 else sympy.zeros(m, m)

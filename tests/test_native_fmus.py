@@ -734,6 +734,19 @@ def test_variable_mass_controllers_equal_the_python_laws(tmp_path: Path) -> None
         fmu.freeInstance()
 
 
+def test_a_reference_without_a_native_form_is_refused_by_name() -> None:
+    """n_e > n_m with the least-energy operating point (its port choice is a linear program, not generated): the C
+    generator refuses with the reason (fmus.native_build turns it into a NativeBuildError: exit 1 of `emcosim plant
+    build --native`), before any sympy work."""
+    from components.c_codegen import controller_c_source
+    from components.description import parse, with_operating_point
+
+    toml = EXAMPLES / "two_magnet_ball" / "two_magnet_ball.toml"
+    desc = parse(with_operating_point(toml.read_text(), "least_energy", str(toml)), str(toml))
+    with pytest.raises(ValueError, match="least_energy .* has no native form yet"):
+        controller_c_source(desc, "Theorem3", [])
+
+
 def _monolithic_loop(scenario, device):
     """The example scenario's closed loop from its .ssv values (components.catalog knows the device once its
     description is registered): the controller, the initial state, the stacked references (one per position)."""

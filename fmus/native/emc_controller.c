@@ -1,6 +1,7 @@
 /* emcosim's FMI 2.0 framework in C: the FMI functions of a native controller FMU (ME and CS, no states).
  *
- * The model (emc_controller.h) supplies the law u(inputs) of components.laws and its Jacobian; this file
+ * The model (emc_controller.h) supplies the law u(inputs) of components.laws (EMC_N_OUTPUTS entries, any n_e) and
+ * its Jacobian, with the feasible reference of Definition 1 and the design's checks; this file
  * supplies the state machines of FMI 2.0 section 3.2.3 (ME) and 4.2.4 (CS), get/set by value reference,
  * the FMU state, du/dt (fmi2GetRealOutputDerivatives, order 1, from the input derivatives the master set:
  * orders >= 2 are accepted and dropped, as the twin's orderUsed = 1), the directional derivatives, and
@@ -9,8 +10,8 @@
  *
  * The same rules as emc_fmi2.c: every argument checked before it is read; calls outside the state machine
  * refused with fmi2Error and one log line; a u that cannot be computed (a reference that is not feasible,
- * Definition 1: q* outside the domain or 2 F* / g <= 0; a u that is not finite) is answered with fmi2Error
- * (fmi2Discard in doStep) and one log line, never with NaN; memory is allocated in fmi2Instantiate only.
+ * Definition 1: q* outside the domain, no real x_e*, Newton's method failing; a u that is not finite) is answered
+ * with fmi2Error (fmi2Discard in doStep) and one log line, never with NaN; memory is allocated in fmi2Instantiate only.
  * strict = 1 (the twin's design checks, components.certificates.design_checks) is not provided: it is
  * refused at fmi2ExitInitializationMode.
  */

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import re
+from itertools import combinations
 from typing import Sequence
 
 import sympy
@@ -267,14 +268,19 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
         int emc_check_gains(gain)                        the gain parameters' conditions
 
     (fmus/native/emc_controller.h). ValueError for a plant whose feasible reference has no native form yet."""
-    from .laws import FAMILY, TRACKING, closed_reference, jet_vector, law, newton_reference
+    from .laws import (
+        FAMILY,
+        TRACKING,
+        closed_reference,
+        jet_vector,
+        law,
+        least_reference_branch,
+        newton_reference,
+        operating_point_costs,
+    )
     names = tuple(p.name for p in gain_parameters)
     family, tracking = FAMILY[design], TRACKING[design]
     m, e = desc.n_m, desc.n_e
-    rule = desc.operating_point
-    if e > m and (rule is None or rule.kind != "bias"):
-        raise ValueError(f"{desc.source}: the operating point {'least_energy (the default)' if rule is None else rule.kind} "
-                         "of n_e > n_m has no native form yet (its port choice is a linear program); a bias has")
     if e < m:
         raise ValueError(f"{desc.source}: n_e = {e} < n_m = {m}: the force balance of Definition 1 is overdetermined "
                          "(the pythonfmu controller has no feasible reference either)")
@@ -302,7 +308,30 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
         functions.append(w_jet.function("ctrl_jet", [*q_d, *([sympy.Integer(0)] * (3 * m))],
                                         "the constant reference jet (q_d, 0, 0, 0) of regulation"))
     w_ref = CWriter(E, [par, gain, ("jet", "J_", jet)])
-    if (m == 1 and e == 1 and desc.constant_mass) or e > m:
+    rule = desc.operating_point
+    tables = ""
+    if e > m and (rule is None or rule.kind != "bias"):
+        if any(sympy.simplify(D[i, j]) != 0 for D in (E.Psi, *E.dPsi) for i in range(e) for j in range(e) if i != j):
+            raise ValueError(f"{desc.source}: an operating point for n_e = {e} > n_m = {m} needs diagonal Psi(q) and "
+                             "dPsi/dq_k (components.operating_point): not available for coupled coils")
+        kind, n_conditions = "least", 0
+        vertices = list(combinations(range(e), m))
+        branches = vertices + [T for k in range(m + 1, e + 1) for T in combinations(range(e), k)]
+        star = dict(zip(desc.q_symbols, jet[:m]))
+        A = [E.dPsi[k][i, i].xreplace(star) / 2 for k in range(m) for i in range(e)]
+        margin = sympy.oo if E.domain_margin is None else E.domain_margin.xreplace(star)
+        F = _required_force(desc)
+        functions.append(w_ref.function("ctrl_select", [margin, *F, *A, *(-F), *operating_point_costs(desc)],
+                                        "(margin of q*, F*, A_ki = (dPsi/dq_k)_ii / 2, b = -F*, the rule's costs) at q*"))
+        for index, ports in enumerate(branches):
+            w, state = least_reference_branch(desc, ports)
+            functions.append(w_ref.function(f"ctrl_state_{index}", [*w, *state],
+                                            f"(w, q*, p*, x_e*, x_e*') with the ports {ports} energized"))
+            if tracking:
+                functions.append(w_ref.function(f"ctrl_dstate_{index}", [x.diff(j) for x in state for j in jet],
+                                                f"d(q*, p*, x_e*, x_e*') / d jet with the ports {ports} (row-major)"))
+        tables = _branch_tables(branches, e, len(vertices), tracking)
+    elif (m == 1 and e == 1 and desc.constant_mass) or e > m:
         R = closed_reference(desc)
         kind, n_conditions = "closed", len(R.conditions)
         functions.append(w_ref.function("ctrl_feasibility", [R.margin, *R.F, *R.conditions],
@@ -336,8 +365,30 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
             f"#define X_E_SIGN {float(desc.x_e_sign)!r}", f"#define TRACKING {int(tracking)}",
             f"#define STRICT_PH {STRICT_PH[design]}", f"#define CHECK_WEIGHT {int(check_weight)}",
             f'#define WEIGHT_NAME "{weight}"', ""]
-    glue = _CONTROLLER_GLUE + (_CLOSED_REFERENCE if kind == "closed" else _NEWTON_REFERENCE) + _CONTROLLER_LAW
+    glue = _CONTROLLER_GLUE + {"closed": _CLOSED_REFERENCE, "newton": _NEWTON_REFERENCE,
+                               "least": _SOLVE + tables + _LEAST_REFERENCE}[kind] + _CONTROLLER_LAW
     return "\n".join(head) + "\n" + "\n\n".join(functions) + "\n" + glue
+
+
+def _required_force(desc: Description) -> sympy.Matrix:
+    """F* of components.laws.force_jet (the force the reference needs)."""
+    from .laws import force_jet
+    return force_jet(desc)[1]
+
+
+def _branch_tables(branches: list[tuple[int, ...]], e: int, n_vertices: int, tracking: bool) -> str:
+    """The C tables of a least rule's branches: their ports and their generated functions."""
+    rows = ", ".join("{" + ", ".join(str(i) for i in (*ports, *([-1] * (e - len(ports))))) + "}" for ports in branches)
+    lines = [f"#define NB {n_vertices}                  /* the vertices: n_m of the n_e ports */",
+             f"#define NT {len(branches)}                  /* and the even shares of more ports */",
+             "typedef void (*emc_branch)(const double *par, const double *gain, const double *jet, double *out);",
+             f"static const int BRANCH_SIZE[NT] = {{{', '.join(str(len(b)) for b in branches)}}};",
+             f"static const int BRANCH_PORTS[NT][NE] = {{{rows}}};",
+             f"static const emc_branch STATE[NT] = {{{', '.join(f'emc_ctrl_state_{i}' for i in range(len(branches)))}}};"]
+    if tracking:
+        lines.append(f"static const emc_branch DSTATE[NT] = "
+                     f"{{{', '.join(f'emc_ctrl_dstate_{i}' for i in range(len(branches)))}}};")
+    return "\n".join(lines) + "\n"
 
 
 # The hand-written C around the generated functions: bounded loops only (stated in each comment).
@@ -466,10 +517,7 @@ static const char *reference(const double *par, const double *gain, const double
 }
 """
 
-_NEWTON_REFERENCE = r"""
-#define NEWTON_FAILED "Newton's method (100 iterations) found no real x_e* that balances the force the reference needs"
-#define SINGULAR "the force balance's Jacobian A_ki = (dPsi/dq_k x_e*)_i is singular"
-
+_SOLVE = r"""
 /* A x = b for an n x n matrix A (row-major, destroyed) and nrhs right-hand sides b (n x nrhs, row-major, replaced by
    the solution), by Gaussian elimination with partial pivoting: 0, or -1 when A is singular */
 static int solve(int n, double *A, int nrhs, double *b)
@@ -502,6 +550,12 @@ static int solve(int n, double *A, int nrhs, double *b)
         }
     return 0;
 }
+
+"""
+
+_NEWTON_REFERENCE = _SOLVE + r"""
+#define NEWTON_FAILED "Newton's method (100 iterations) found no real x_e* that balances the force the reference needs"
+#define SINGULAR "the force balance's Jacobian A_ki = (dPsi/dq_k x_e*)_i is singular"
 
 /* the 2-norm condition number of an n x n matrix (numpy's cond): the ratio of its largest to its smallest singular
    value, by one-sided Jacobi rotations (at most JACOBI_SWEEPS sweeps); INFINITY for a singular matrix */
@@ -650,6 +704,94 @@ static const char *reference(const double *par, const double *gain, const double
         memcpy(dref + 2 * NM * NJ, dx, sizeof dx);
         for (i = 0; i < NE * NJ; i++) dref[(2 * NM + NE) * NJ + i] = -dxd[i];
     }
+#else
+    (void)dref;
+#endif
+    return NULL;
+}
+"""
+
+_LEAST_REFERENCE = r"""
+/* the determinant of an n x n matrix (numpy's det: LU with partial pivoting) */
+static double determinant(int n, const double *M)
+{
+    double a[NE * NE], det = 1.0;
+    int i, j, k;
+    memcpy(a, M, sizeof(double) * (size_t)(n * n));
+    for (k = 0; k < n; k++) {
+        int pivot = k;
+        for (i = k + 1; i < n; i++)
+            if (fabs(a[i * n + k]) > fabs(a[pivot * n + k])) pivot = i;
+        if (a[pivot * n + k] == 0.0) return 0.0;
+        if (pivot != k) {
+            for (j = 0; j < n; j++) { double t = a[k * n + j]; a[k * n + j] = a[pivot * n + j]; a[pivot * n + j] = t; }
+            det = -det;
+        }
+        det *= a[k * n + k];
+        for (i = k + 1; i < n; i++) {
+            double f = a[i * n + k] / a[k * n + k];
+            for (j = k; j < n; j++) a[i * n + j] -= f * a[k * n + j];
+        }
+    }
+    return det;
+}
+
+/* (q*, p*, x_e*, x_e*') of the jet with the least-energy or least-input operating point (components.operating_point
+   .solve: the vertex of least cost among the NB choices of n_m ports, the even share where several ports tie) and,
+   if dref is not NULL, its Jacobian in the jet; NULL, or why it does not exist */
+static const char *reference(const double *par, const double *gain, const double *jet, double *ref, double *dref)
+{
+    double s[1 + NM + NM * NE + NM + NE], cost[NB], out[NE + NR], best = INFINITY;
+    const double *A = s + 1 + NM, *b = A + NM * NE, *psi = b + NM;
+    int tied[NE], i, k, v, found = 0, count = 0, chosen = -1;
+    emc_ctrl_select(par, gain, jet, s);
+    if (!(s[0] > 0.0)) return OUTSIDE;
+    if (!TRACKING && all_zero(NM, s + 1)) {        /* grad V(q_d) = 0: x_e_d = 0 (EMPlant.equilibrium) */
+        memset(ref, 0, sizeof(double) * NR);
+        for (i = 0; i < NM; i++) ref[i] = jet[i];
+        return NULL;
+    }
+    for (v = 0; v < NB; v++) {
+        double AB[NM * NM], w[NM], scale = 0.0;
+        cost[v] = NAN;
+        for (k = 0; k < NM; k++)
+            for (i = 0; i < NM; i++) {
+                AB[k * NM + i] = A[k * NE + BRANCH_PORTS[v][i]];
+                scale = fmax(scale, fabs(AB[k * NM + i]));
+            }
+        if (fabs(determinant(NM, AB)) <= 1e-14 * pow(fmax(scale, 1e-300), NM)) continue;
+        memcpy(w, b, sizeof w);
+        if (solve(NM, AB, 1, w) != 0) continue;
+        for (i = 0; i < NM && w[i] >= 0.0; i++) {}
+        if (i < NM) continue;
+        cost[v] = 0.0;
+        for (i = 0; i < NM; i++) cost[v] += psi[BRANCH_PORTS[v][i]] * w[i];
+        if (!found || cost[v] < best) best = cost[v];
+        found = 1;
+    }
+    if (!found) return INFEASIBLE;
+    memset(tied, 0, sizeof tied);
+    for (v = 0; v < NB; v++)
+        if (cost[v] <= best + 1e-12 * fabs(best))
+            for (i = 0; i < NM; i++) tied[BRANCH_PORTS[v][i]] = 1;
+    for (i = 0; i < NE; i++) count += tied[i];
+    if (count > NM)                                /* equal cost on several ports: share evenly where w > 0 */
+        for (v = NB; v < NT && chosen < 0; v++) {
+            if (BRANCH_SIZE[v] != count) continue;
+            for (i = 0; i < count && tied[BRANCH_PORTS[v][i]]; i++) {}
+            if (i < count) continue;
+            STATE[v](par, gain, jet, out);
+            for (i = 0; i < count && out[i] > 0.0; i++) {}
+            if (i == count) chosen = v;
+        }
+    for (v = 0; v < NB && chosen < 0; v++)         /* the first vertex of least cost */
+        if (cost[v] == best) {
+            chosen = v;
+            STATE[v](par, gain, jet, out);
+        }
+    memcpy(ref, out + BRANCH_SIZE[chosen], sizeof(double) * NR);
+#if TRACKING
+    if (dref != NULL) DSTATE[chosen](par, gain, jet, dref);
 #else
     (void)dref;
 #endif

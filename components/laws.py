@@ -350,3 +350,52 @@ def closed_reference(desc: Description) -> ClosedReference:
     for i, j, r in rule.ratios:
         x_dot[i] = r * x_dot[j]
     return ClosedReference(jet, margin, F, tuple(w_free), (*jet[:m], *p, *x, *x_dot))
+
+
+def least_reference_branch(desc: Description, ports: tuple[int, ...]) -> tuple[tuple[sympy.Expr, ...], tuple[sympy.Expr, ...]]:
+    """One branch of a least-energy or least-input operating point (components.operating_point.solve and rate) in
+    the jet of `jet_vector`: (w on `ports`, the feasible state (q*, p*, x_e*, x_e*')). n_m ports: a vertex of the
+    linear program, w_B = A_B^-1 b; more ports: the even share of tied ports, w_T = A_T^T (A_T A_T^T)^-1 b; b = -F*,
+    A_ki = (dPsi/dq_k)_ii / 2 at q*; x_e* = x_e_sign sqrt(w) on the ports, 0 elsewhere; x_e*' from A w' = -F*' - A' w
+    (the even share differentiated: w_T' = A_T'^T y + A_T^T y', y = G^-1 b, y' = G^-1 (b' - (A_T' A_T^T + A_T A_T'^T) y),
+    G = A_T A_T^T). Which branch holds at a jet is chosen numerically (components.c_codegen)."""
+    E = plant_expressions(desc)
+    jet = jet_vector(desc)
+    m, e = desc.n_m, desc.n_e
+    star = dict(zip(desc.q_symbols, jet[:m]))
+    p, F, F_dot = force_jet(desc)
+    A = sympy.Matrix(m, e, lambda k, i: E.dPsi[k][i, i].xreplace(star) / 2)
+    A_dot = sympy.Matrix(m, e, lambda k, i: sum(E.d2Psi[k][j][i, i].xreplace(star) * jet[m + j] for j in range(m)) / 2)
+    A_T, A_T_dot = A[:, list(ports)], A_dot[:, list(ports)]
+    if len(ports) == m:
+        A_inv = A_T.inv()
+        w_T = A_inv * (-F)
+        w_full = sympy.zeros(e, 1)
+        for k, i in enumerate(ports):
+            w_full[i] = w_T[k]
+        w_dot = A_inv * (-F_dot - A_dot * w_full)
+    else:
+        G_inv = (A_T * A_T.T).inv()
+        y = G_inv * (-F)
+        y_dot = G_inv * (-F_dot - (A_T_dot * A_T.T + A_T * A_T_dot.T) * y)
+        w_T = A_T.T * y
+        w_dot = A_T_dot.T * y + A_T.T * y_dot
+    x = [sympy.Integer(0)] * e
+    x_dot = [sympy.Integer(0)] * e
+    for k, i in enumerate(ports):
+        x[i] = desc.x_e_sign * sympy.sqrt(w_T[k])
+        x_dot[i] = w_dot[k] / (2 * x[i])
+    return tuple(w_T), (*jet[:m], *p, *x, *x_dot)
+
+
+def operating_point_costs(desc: Description) -> tuple[sympy.Expr, ...]:
+    """The cost per unit of w_i = x_e_i^2 a least rule minimises (components.operating_point.weights), at q*:
+    Psi_ii (least_energy) or ((R_e - J_e)_ii Psi_ii / G_e_ii)^2 (least_input)."""
+    E = plant_expressions(desc)
+    star = dict(zip(desc.q_symbols, jet_vector(desc)[:desc.n_m]))
+    psi = [E.Psi[i, i].xreplace(star) for i in range(desc.n_e)]
+    rule = desc.operating_point
+    if rule is not None and rule.kind == "least_input":
+        RJ = desc.R_e - desc.J_e
+        return tuple((RJ[i, i] * psi[i] / desc.G_e[i, i]) ** 2 for i in range(desc.n_e))
+    return tuple(psi)

@@ -691,24 +691,16 @@ def test_example_controllers_equal_their_twins(example_fmus, name) -> None:
         assert_controller_equals_the_twin(native / f"{identifier}.fmu", twin / f"{identifier}.fmu", identifier)
 
 
-@pytest.mark.slow      # about 15 s: sympy and gcc for a plant whose M depends on q
-def test_variable_mass_controllers_equal_the_python_laws(tmp_path: Path) -> None:
-    """A bar whose mass matrix depends on the tilt (tests/test_described_plants.VARIABLE_MASS: M(q) with n_m = n_e = 2):
-    its native Proposition 2 and Theorem 3 against the device's numpy laws (what the pythonfmu twin computes:
-    Controller.u and its complex step Controller.u_derivative) at random inputs, to 1e-12: p* = M(q*) q*' and
-    F* with the dM/dt and dM^-1/dq terms (components.laws.force_jet), x_e* by Newton."""
+def assert_native_controllers_equal_the_python_laws(toml: Path, designs: list[str], folder: Path) -> None:
+    """Every design of the description `toml` built natively against the device's numpy laws (what the pythonfmu
+    twin computes: Controller.u and its complex step Controller.u_derivative) at 10 random inputs, to 1e-12."""
     from components.ph_plant import Jet
     from emcosim.devices import registry
     from fmus.native_build import build_native_description_fmus
-    from tests.test_described_plants import VARIABLE_MASS
 
-    toml = tmp_path / "variable_mass.toml"
-    toml.write_text(VARIABLE_MASS)
     desc, _, device = registry.load(toml)
-    assert not desc.constant_mass
-    designs = sorted(device.designs)
-    assert designs == ["Proposition2", "Theorem3"]
-    paths = build_native_description_fmus(toml, designs, tmp_path / "fmus")
+    assert sorted(device.designs) == designs
+    paths = build_native_description_fmus(toml, designs, folder)
     rng = np.random.default_rng(11)
     n, m = len(device.states), device.n_m
     for design in designs:
@@ -729,21 +721,74 @@ def test_variable_mass_controllers_equal_the_python_laws(tmp_path: Path) -> None
             for j, name in enumerate(inputs):
                 want += list(controller.u_derivative(list(x), list(np.eye(len(x))[j])))
                 got += fmu.getDirectionalDerivative(outputs, [vr[name]], [1.0])
-            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * max(np.max(np.abs(want[:len(outputs)])), 1.0))
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * max(np.max(np.abs(want[:len(outputs)])), 1.0),
+                                       err_msg=f"{identifier} at the inputs {dict(zip(inputs, x))}")
         fmu.terminate()
         fmu.freeInstance()
 
 
-def test_a_reference_without_a_native_form_is_refused_by_name() -> None:
-    """n_e > n_m with the least-energy operating point (its port choice is a linear program, not generated): the C
-    generator refuses with the reason (fmus.native_build turns it into a NativeBuildError: exit 1 of `emcosim plant
-    build --native`), before any sympy work."""
-    from components.c_codegen import controller_c_source
-    from components.description import parse, with_operating_point
+@pytest.mark.slow      # about 15 s: sympy and gcc for a plant whose M depends on q
+def test_variable_mass_controllers_equal_the_python_laws(tmp_path: Path) -> None:
+    """A bar whose mass matrix depends on the tilt (tests/test_described_plants.VARIABLE_MASS: M(q) with n_m = n_e = 2):
+    its native Proposition 2 and Theorem 3 equal the device's numpy laws: p* = M(q*) q*' and F* with the dM/dt and
+    dM^-1/dq terms (components.laws.force_jet), x_e* by Newton. Measured: worst 1e-13 relative."""
+    from components.description import load
+    from tests.test_described_plants import VARIABLE_MASS
 
-    toml = EXAMPLES / "two_magnet_ball" / "two_magnet_ball.toml"
-    desc = parse(with_operating_point(toml.read_text(), "least_energy", str(toml)), str(toml))
-    with pytest.raises(ValueError, match="least_energy .* has no native form yet"):
+    toml = tmp_path / "variable_mass.toml"
+    toml.write_text(VARIABLE_MASS)
+    assert not load(toml).constant_mass
+    assert_native_controllers_equal_the_python_laws(toml, ["Proposition2", "Theorem3"], tmp_path / "fmus")
+
+
+def _damped_ball(psi: str) -> str:
+    """The two-magnet ball with a spring and damping (Assumptions 1 and 3 can hold) and the least-energy operating
+    point (components.operating_point), its Psi(q) = `psi`."""
+    text = (EXAMPLES / "two_magnet_ball" / "two_magnet_ball.toml").read_text()
+    for old, new in (('rule = "bias"', 'rule = "least_energy"'), ("x_2 = 0.5 ", "# x_2 "), ('R_m = "0"', 'R_m = "d_m"'),
+                     ('V   = "b*q"', 'V   = "b*q + k_s*(q - c/2)**2/2"'),
+                     ('R_c = [2.25,', 'k_s = [50.0, "N/m", "spring", "> 0"]\nd_m = [0.5, "N.s/m", "damping", "> 0"]\n'
+                                      'R_c = [2.25,'),
+                     ('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]', psi)):
+        assert old in text
+        text = text.replace(old, new)
+    return text
+
+
+@pytest.mark.slow      # about 30 s: two devices, six controllers
+@pytest.mark.parametrize("psi, designs", [
+    ('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]', ["Proposition1", "Theorem2"]),             # the upper coil alone
+    ('Psi = [["(c - q)/k", "0"], ["0", "(c - q)/k"]]', ["Proposition1", "Proposition2", "Theorem2", "Theorem3"])],
+    ids=["one-port", "even-share"])                                                     # two identical coils: tied
+def test_least_energy_controllers_equal_the_python_laws(tmp_path: Path, psi: str, designs: list[str]) -> None:
+    """n_e = 2 > n_m = 1 with the least-energy operating point: the native controllers choose the vertex of least
+    energy (the upper coil alone) or, where both coils tie, the even share, as components.operating_point does, and
+    equal the device's numpy laws (the branch's x_e* and x_e*' and their derivatives symbolic). Measured: worst 1e-13."""
+    toml = tmp_path / "ball.toml"
+    toml.write_text(_damped_ball(psi))
+    assert_native_controllers_equal_the_python_laws(toml, designs, tmp_path / "fmus")
+
+
+def test_a_reference_without_a_native_form_is_refused_by_name() -> None:
+    """n_e < n_m (the force balance of Definition 1 overdetermined; the pythonfmu controller has no reference either):
+    the C generator refuses with the reason (fmus.native_build turns it into a NativeBuildError: exit 1 of `emcosim
+    plant build --native`), before any sympy work."""
+    from components.c_codegen import controller_c_source
+    from components.description import parse
+    from tests.test_described_plants import BAR_TOML
+
+    text = BAR_TOML
+    for old, new in (('x_e = [["x_1", "Wb", "flux linkage of coil 1"], ["x_2", "Wb", "flux linkage of coil 2"]]',
+                      'x_e = [["x_1", "Wb", "flux linkage"]]'),
+                     ('u   = [["u_1", "V", "voltage of coil 1"], ["u_2", "V", "voltage of coil 2"]]',
+                      'u   = [["u_1", "V", "voltage"]]'),
+                     ('Psi = [["(c - z - l*theta)/k", "0"], ["0", "(c - z + l*theta)/k"]]', 'Psi = "(c - z)/k"'),
+                     ('J_e = [["0", "0"], ["0", "0"]]', 'J_e = "0"'), ('R_e = [["R", "0"], ["0", "R"]]', 'R_e = "R"'),
+                     ('G_e = [["1", "0"], ["0", "1"]]', 'G_e = "1"'), ("k_c = [[20.0, 0.0], [0.0, 20.0]]", "k_c = 20.0")):
+        text = text.replace(old, new)
+    desc = parse(text)
+    assert (desc.n_m, desc.n_e) == (2, 1)
+    with pytest.raises(ValueError, match="n_e = 1 < n_m = 2: the force balance of Definition 1 is overdetermined"):
         controller_c_source(desc, "Theorem3", [])
 
 

@@ -741,11 +741,11 @@ def test_variable_mass_controllers_equal_the_python_laws(tmp_path: Path) -> None
     assert_native_controllers_equal_the_python_laws(toml, ["Proposition2", "Theorem3"], tmp_path / "fmus")
 
 
-def _damped_ball(psi: str) -> str:
-    """The two-magnet ball with a spring and damping (Assumptions 1 and 3 can hold) and the least-energy operating
-    point (components.operating_point), its Psi(q) = `psi`."""
+def _damped_ball(psi: str, rule: str = "least_energy") -> str:
+    """The two-magnet ball with a spring and damping (Assumptions 1 and 3 can hold) and a least operating point
+    (components.operating_point), its Psi(q) = `psi`."""
     text = (EXAMPLES / "two_magnet_ball" / "two_magnet_ball.toml").read_text()
-    for old, new in (('rule = "bias"', 'rule = "least_energy"'), ("x_2 = 0.5 ", "# x_2 "), ('R_m = "0"', 'R_m = "d_m"'),
+    for old, new in (('rule = "bias"', f'rule = "{rule}"'), ("x_2 = 0.5 ", "# x_2 "), ('R_m = "0"', 'R_m = "d_m"'),
                      ('V   = "b*q"', 'V   = "b*q + k_s*(q - c/2)**2/2"'),
                      ('R_c = [2.25,', 'k_s = [50.0, "N/m", "spring", "> 0"]\nd_m = [0.5, "N.s/m", "damping", "> 0"]\n'
                                       'R_c = [2.25,'),
@@ -755,17 +755,19 @@ def _damped_ball(psi: str) -> str:
     return text
 
 
-@pytest.mark.slow      # about 30 s: two devices, six controllers
-@pytest.mark.parametrize("psi, designs", [
-    ('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]', ["Proposition1", "Theorem2"]),             # the upper coil alone
-    ('Psi = [["(c - q)/k", "0"], ["0", "(c - q)/k"]]', ["Proposition1", "Proposition2", "Theorem2", "Theorem3"])],
-    ids=["one-port", "even-share"])                                                     # two identical coils: tied
-def test_least_energy_controllers_equal_the_python_laws(tmp_path: Path, psi: str, designs: list[str]) -> None:
-    """n_e = 2 > n_m = 1 with the least-energy operating point: the native controllers choose the vertex of least
-    energy (the upper coil alone) or, where both coils tie, the even share, as components.operating_point does, and
-    equal the device's numpy laws (the branch's x_e* and x_e*' and their derivatives symbolic). Measured: worst 1e-13."""
+@pytest.mark.slow      # about 40 s: three devices, eight controllers
+@pytest.mark.parametrize("psi, rule, designs", [
+    ('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]', "least_energy", ["Proposition1", "Theorem2"]),   # the upper coil alone
+    ('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]', "least_input", ["Proposition1", "Theorem2"]),
+    ('Psi = [["(c - q)/k", "0"], ["0", "(c - q)/k"]]', "least_energy",                     # two identical coils: tied
+     ["Proposition1", "Proposition2", "Theorem2", "Theorem3"])], ids=["one-port", "least-input", "even-share"])
+def test_least_energy_controllers_equal_the_python_laws(tmp_path: Path, psi: str, rule: str, designs: list[str]) -> None:
+    """n_e = 2 > n_m = 1 with the least-energy or least-input operating point: the native controllers choose the
+    vertex of least cost (the upper coil alone) or, where both coils tie, the even share, as components.
+    operating_point does, and equal the device's numpy laws (the branch's x_e* and x_e*' and their derivatives
+    symbolic). Measured: worst 1e-13."""
     toml = tmp_path / "ball.toml"
-    toml.write_text(_damped_ball(psi))
+    toml.write_text(_damped_ball(psi, rule))
     assert_native_controllers_equal_the_python_laws(toml, designs, tmp_path / "fmus")
 
 

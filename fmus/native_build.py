@@ -374,8 +374,8 @@ def build_native_reference(dest: Path | str, cc: str = "gcc") -> Path:
 def build_native_description_fmus(description: Path | str, designs: Sequence[str], dest: Path | str,
                                   cc: str = "gcc") -> dict[str, Path]:
     """The native plant FMU of a plant description file and a native controller FMU per design of `designs` (any
-    n_m, n_e; NativeBuildError for a feasible reference with no native form: n_e > n_m with the least-energy or
-    least-input operating point): model identifier -> path. The twins are the FMUs
+    n_m, n_e; NativeBuildError for a feasible reference with no native form: n_e < n_m, or coupled coils with
+    n_e > n_m): model identifier -> path. The twins are the FMUs
     `emcosim plant build` makes (the slave classes of fmus.models.device_slave_classes)."""
     from components import codegen
 

@@ -114,8 +114,8 @@ def build_native_fmus_of(description: str | Path, out: Path,
                          progress: Callable[[str], None] | None = None) -> dict[str, Path]:
     """`plant build --native`: the native (C, self-contained) plant FMU of a description file, a native controller
     FMU per design that applies (any n_m, n_e: fmus.native_build) and the native Reference FMU, into `out`.
-    NativeBuildError for a missing compiler or a design whose feasible reference has no native form (n_e > n_m
-    with the least-energy or least-input operating point); the FMUs written before it stay."""
+    NativeBuildError for a missing compiler or a design whose feasible reference has no native form (n_e < n_m,
+    coupled coils with n_e > n_m: the pythonfmu controller has none either); the FMUs written before it stay."""
     from fmus.native_build import build_native_description_fmus, build_native_reference
 
     from . import registry

@@ -19,13 +19,20 @@ by pythonfmu's own builder (C host: run the old way, libpython preloaded and PYT
 Each FMU's figure is printed beside the floor; the controllers' target (issue 13): set + doStep + get
 within 1.5 times the floor in the C host. C-host figures are medians over --repeats processes per FMU,
 the FMUs and the floor taking turns.
+Native FMUs (--native, default build/native when it holds them; `python build.py --native`): the same
+C-host loop takes them in the same rotation, and a last table puts each native FMU beside its pythonfmu
+twin, per communication step (CS: set + doStep + get) and per Model Exchange round trip (the plants),
+from Python (benchmarks/bench_native.py's raw-ctypes loops, CPU time) and from C (c_host.c; ME:
+tests/fixtures/c_me_host.c's 10000 fmi2SetContinuousStates + fmi2GetDerivatives), all under `env -i`.
 """
 from __future__ import annotations
 
 import argparse
 import ctypes
 import math
+import os
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -232,12 +239,14 @@ def bench_floor(floors: dict[str, Path], n: int) -> list[tuple[str, float, float
     return rows
 
 
-def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int) -> list[tuple[str, float, float, float]] | str:
+def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int, native: Path | None = None
+                 ) -> list[tuple[str, float, float, float]] | str:
     """Each FMU in the C host of tests/fixtures/c_host.c under `env -i` (no Python on the caller's side: what
     Simulink, OpenModelica or libcosim pay), each process right after one of the floor, so that the floor is
     sampled all through the run (the machine's load changes from second to second): (name, median us of
     set + doStep + get, median us of doStep alone, that median over the median of all the floor's runs),
-    over `repeats` runs per FMU; or why the host cannot be built here.
+    over `repeats` runs per FMU; or why the host cannot be built here. With `native`, the native FMUs of that
+    folder take their turns too, named "native <identifier>".
     The raw pythonfmu floor runs the old way (libpython preloaded, PYTHONHOME/PYTHONPATH)."""
     import sysconfig
     import tempfile
@@ -250,6 +259,9 @@ def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int) ->
     cases.update({i: (folder / f"{i}.fmu", x, ["u"], H["MEMS" if i.startswith("MEMS") else "Maglev"])
                   for i, x in CONTROLLER_INPUTS.items()})
     cases["Reference"] = (folder / "Reference.fmu", {}, JET, 1e-3)
+    if native is not None:
+        cases.update({f"native {name}": (native / case[0].name, *case[1:]) for name, case in list(cases.items())
+                      if name not in floors})
     libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("INSTSONAME")
     raw_env = {"LD_PRELOAD": str(libpython), "PYTHONHOME": sys.base_prefix,
                "PYTHONPATH": sysconfig.get_paths()["purelib"]}
@@ -262,8 +274,9 @@ def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int) ->
 
         def measure(name: str) -> tuple[float, float]:
             fmu, inputs, outputs, h = cases[name]
-            steps = min(n, 500) if name == "Maglev" else n      # open loop: the ball reaches the magnet at 2 s
-            run, values = run_in_c_host(exe, fmu, Path(tmp), inputs, outputs, h, steps,
+            steps = min(n, 500) if name.endswith("Maglev") else n      # open loop: the ball reaches the magnet at 2 s
+            workdir = Path(tmp) / ("native" if name.startswith("native ") else "pythonfmu")   # unzipped by identifier
+            run, values = run_in_c_host(exe, fmu, workdir, inputs, outputs, h, steps,
                                         env=raw_env if name == "raw pythonfmu" else None)
             if run.returncode != 0:
                 raise RuntimeError(f"{name} in the C host: exit status {run.returncode}: {run.stderr[-500:]}")
@@ -277,6 +290,58 @@ def bench_c_host(folder: Path, floors: dict[str, Path], n: int, repeats: int) ->
     floor = statistics.median(s[0] for s in samples["floor"])
     return [(name, statistics.median(s[0] for s in v), statistics.median(s[1] for s in v),
              statistics.median(s[0] for s in v) / floor) for name, v in samples.items()]
+
+
+def me_c_host(folders: dict[str, Path], repeats: int) -> dict[tuple[str, str], float] | str:
+    """The plants as Model Exchange in tests/fixtures/c_me_host.c under `env -i`: median over `repeats`
+    processes of its mean cost [us] of one fmi2SetContinuousStates + fmi2GetDerivatives round trip (10000 at
+    the state reached), per (form, plant), the forms taking turns; or why the host cannot be built here."""
+    import tempfile
+
+    from tests.c_host import compile_c_host, extract
+
+    samples: dict[tuple[str, str], list[float]] = {(form, p): [] for form in folders for p in H}
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = Path(tmp) / "c_me_host"
+        reason = compile_c_host(exe, ROOT / "tests" / "fixtures" / "c_me_host.c")
+        if reason:
+            return reason
+        for _ in range(repeats):
+            for (form, plant), values in samples.items():
+                fmu = folders[form] / f"{plant}.fmu"
+                unzipped, vr = extract(fmu, Path(tmp) / form)
+                md = read_model_description(str(fmu))
+                h, steps = (1e-11, 100) if plant == "MEMS" else (1e-4, 100)
+                args = [str(unzipped / "binaries" / "linux64" / f"{plant}.so"), plant, (unzipped / "resources").as_uri(),
+                        md.guid, repr(h), str(steps), "3", str(md.numberOfEventIndicators), str(vr["u"]),
+                        "25.0" if plant == "MEMS" else "0.009045"]
+                run = subprocess.run(["env", "-i", str(exe), *args], capture_output=True, text=True, timeout=300)
+                if run.returncode != 0:
+                    raise RuntimeError(f"{form} {plant} in the ME C host: exit status {run.returncode}: "
+                                       f"{run.stderr[-500:]}")
+                values.append(float(run.stdout.split()[0]) / 1000.0)
+    return {key: statistics.median(v) for key, v in samples.items()}
+
+
+def side_by_side(twins: Path, native: Path, c_rows: list[tuple[str, float, float, float]] | str, n: int,
+                 repeats: int) -> list[tuple[str, float, float, float, float]]:
+    """Per FMU and call, (name, Python host pythonfmu, Python host native, C host pythonfmu, C host native) in
+    us: Python from benchmarks/bench_native.py (raw ctypes, CPU time), C from `c_rows` (bench_c_host with the
+    native FMUs) and me_c_host; nan where not measured."""
+    from benchmarks.bench_native import OTHERS, PLANTS, cs_cost, me_cost
+
+    c_loop = {} if isinstance(c_rows, str) else {name: loop for name, loop, _, _ in c_rows}
+    me_c = me_c_host({"pythonfmu": twins, "native": native}, repeats)
+    rows = []
+    for name in (*PLANTS, *OTHERS):
+        rows.append((f"{name} CS set + doStep + get", cs_cost(twins / f"{name}.fmu", name, n),
+                     cs_cost(native / f"{name}.fmu", name, n), c_loop.get(name, math.nan),
+                     c_loop.get(f"native {name}", math.nan)))
+        if name in PLANTS:
+            c = (math.nan, math.nan) if isinstance(me_c, str) else (me_c[("pythonfmu", name)], me_c[("native", name)])
+            rows.append((f"{name} ME round trip", me_cost(twins / f"{name}.fmu", name, n),
+                         me_cost(native / f"{name}.fmu", name, n), *c))
+    return rows
 
 
 def machine_speed_us() -> float:
@@ -297,8 +362,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fmus", default=str(ROOT / "build" / "fmus"), help="folder with the built FMUs")
     parser.add_argument("-n", type=int, default=2000, help="communication steps per measurement")
     parser.add_argument("--repeats", type=int, default=5, help="C host: processes per FMU (median)")
+    parser.add_argument("--native", default=str(ROOT / "build" / "native"),
+                        help="folder with the native FMUs (build.py --native); skipped when it does not hold all seven")
     args = parser.parse_args(argv)
     folder = Path(args.fmus)
+    native: Path | None = Path(args.native)
+    if not all((native / f"{name}.fmu").is_file() for name in (*H, *CONTROLLERS, "Reference")):
+        print(f"no native FMUs in {native} (python build.py --native): the native column is left out")
+        native = None
+    load = os.getloadavg()
     from fmus import build
     build.build(folder, verbose=False)                       # a no-op when the FMUs are up to date
     speed = machine_speed_us()
@@ -310,7 +382,8 @@ def main(argv: list[str] | None = None) -> int:
         for identifier in CONTROLLERS:
             rows += bench_controller(folder / f"{identifier}.fmu", identifier, args.n)
         rows += bench_reference(folder / "Reference.fmu", args.n)
-        c_rows = bench_c_host(folder, floors, args.n, args.repeats)
+        c_rows = bench_c_host(folder, floors, args.n, args.repeats, native)
+    both = side_by_side(folder, native, c_rows, args.n, args.repeats) if native is not None else []
     floor_step, floor_loop = rows[0][1], rows[1][1]
     print(f"{'Python host, median per communication step':42s} {'FMU [us]':>9s} {'components [us]':>16s} "
           f"{'FMU/comp.':>9s} {'FMU/floor':>9s}")
@@ -319,8 +392,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:42s} {fmu_us:9.1f} {direct_us:16.1f} {fmu_us / direct_us:9.2f} {fmu_us / floor:9.2f}")
     print("floor: the same FMI calls on a trivial slave behind the same loader, measured in this run (FMU/floor = 1 "
           "means the slave's own work costs nothing)")
-    print(f"machine speed in this run: sum(range(1000)) takes {speed:.1f} us")
+    print(f"machine speed in this run: sum(range(1000)) takes {speed:.1f} us; load average (1, 5, 15 min) "
+          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at the start, {' '.join(f'{x:.2f}' for x in os.getloadavg())} "
+          f"at the end, on {os.cpu_count()} cores")
     print()
+    if both:
+        print_side_by_side(both)
+        print()
     if isinstance(c_rows, str):
         print(f"C host: not measured ({c_rows})")
         return 0
@@ -337,6 +415,17 @@ def main(argv: list[str] | None = None) -> int:
           "its jet); floor: a trivial slave behind the same loader; raw pythonfmu: the same slave as pythonfmu "
           "builds it, libpython preloaded")
     return 0
+
+
+def print_side_by_side(rows: list[tuple[str, float, float, float, float]]) -> None:
+    print(f"{'native beside pythonfmu, per step / round trip':44s} {'Python: pythonfmu':>17s} {'native':>8s} "
+          f"{'ratio':>7s} {'C: pythonfmu':>12s} {'native':>8s} {'ratio':>7s}")
+    for name, py_twin, py_native, c_twin, c_native in rows:
+        print(f"{name:44s} {py_twin:17.2f} {py_native:8.2f} {py_native / py_twin:7.3f} {c_twin:12.2f} "
+              f"{c_native:8.3f} {c_native / c_twin:7.3f}")
+    print("[us]; Python: benchmarks/bench_native.py (raw ctypes, CPU time, median of 5 x n; ME: fmi2SetTime + "
+          "fmi2SetContinuousStates + fmi2GetDerivatives); C: tests/fixtures/c_host.c (median of the repeats; wall "
+          "time) and, ME, c_me_host.c's fmi2SetContinuousStates + fmi2GetDerivatives; both under env -i")
 
 
 if __name__ == "__main__":

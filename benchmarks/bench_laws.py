@@ -44,6 +44,9 @@ def load_before(rev: str):
     with tarfile.open(fileobj=BytesIO(archive)) as tar:
         tar.extractall(folder)
     (folder / "components").rename(folder / "components_before")
+    for module in (folder / "components_before").rglob("*.py"):       # generated modules import `components.`
+        text = module.read_text(encoding="utf-8")
+        module.write_text(text.replace("from components.", "from components_before."), encoding="utf-8")
     sys.path.insert(0, str(folder))
     return importlib.import_module("components_before.catalog")
 
@@ -57,22 +60,29 @@ def main(argv=None) -> None:
     before = load_before(args.before)
     print(f"u_scalar: components/ at {args.before} (before) and the working tree (after); best of {args.repeat} "
           f"alternating passes of {args.n} calls.\n")
-    print(f"{'controller':20s} {'before us':>10s} {'after us':>10s} {'after/before':>13s} | {'du along v us':>13s} "
-          f"{'du / u':>7s} {'du after/before':>16s}")
+    print("(FMU's call: what fmus/controller.py evaluates, u_scalar before and Controller.scalars(*inputs), the\n"
+          "generated law, after.)\n")
+    print(f"{'controller':20s} {'before us':>10s} {'after us':>10s} {'after/before':>13s} {'FMU call us':>12s} "
+          f"{'FMU/before':>11s} | {'du along v us':>13s} {'du / u':>7s} {'du after/before':>16s}")
     for name, gains, x in CASES:
         old, new = before.controller(name, gains), catalog.controller(name, gains)
         jet = tuple(x[3:]) if new.tracking else None
         v = [1.0] * len(x)
         calls = {"before": lambda: old.u_scalar(x[0], x[1], x[2], jet),
                  "after": lambda: new.u_scalar(x[0], x[1], x[2], jet),
+                 "after, FMU's call": lambda: new.scalars(*x),
                  "derivative before": (lambda: old.u_derivative(x, v)) if hasattr(old, "u_derivative") else None,
                  "derivative": lambda: new.u_derivative(x, v)}
+        if getattr(new, "scalars", None) is None or not callable(new.scalars):   # before the generated laws
+            del calls["after, FMU's call"]
         calls = {k: c for k, c in calls.items() if c is not None}      # --before may predate u_derivative
-        best = {k: float("inf") for k in calls} | {"derivative before": float("nan")}
+        best = {"derivative before": float("nan"), "after, FMU's call": float("nan")} | {k: float("inf") for k in calls}
         for _ in range(args.repeat):
             for key, call in calls.items():
                 best[key] = min(best[key], timeit.timeit(call, number=args.n) / args.n * 1e6)
-        print(f"{name:20s} {best['before']:10.2f} {best['after']:10.2f} {best['after'] / best['before']:12.2f}x | "
+        fmu = best["after, FMU's call"]
+        print(f"{name:20s} {best['before']:10.2f} {best['after']:10.2f} {best['after'] / best['before']:12.2f}x "
+              f"{fmu:12.2f} {fmu / best['before']:10.2f}x | "
               f"{best['derivative']:13.2f} {best['derivative'] / best['after']:6.1f}x "
               f"{best['derivative'] / best['derivative before']:15.2f}x")
     plant_functions(args.n, args.repeat)

@@ -18,6 +18,9 @@ as max |error_i| / (rtol (s_i + |eta_i|)) (<= 1: within the stepper's tolerance)
 u + u' tau with u' = du/dt of the controller along the loop (controller.u_derivative with the plant's
 eta' and the reference's derivatives), what a master that passes derivatives does; the before stepper
 cannot take u', so its column holds u (marked *).
+
+`--general`: "before" is the working tree's GeneralStepper (numpy arrays, any n_m, n_e; given u' too) on the
+same rows: what merging the two steppers into one would cost the paper's one-DOF plants.
 """
 from __future__ import annotations
 
@@ -36,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from components import catalog  # noqa: E402
-from components.plant_step import PlantStepper, simulate_polynomial  # noqa: E402
+from components.plant_step import GeneralStepper, PlantStepper, simulate_polynomial  # noqa: E402
 from emcosim.engine.ssd import read_scenario  # noqa: E402
 
 # scenario, start time of the recorded segment, step size, hold
@@ -53,6 +56,22 @@ ROWS = [
 ]
 # (The MEMS loops do not allow much larger communication steps: measured from the tracking state, the
 # held-input loop diverges at h = 5 us and the first-order one at 2 us, whatever the plant does.)
+
+
+class GeneralAsScalar:
+    """GeneralStepper (any n_m, n_e; numpy arrays) behind PlantStepper's advance(q, p, x, u, h, du), for
+    `--general`: what a merged stepper would cost on the paper's one-DOF plants."""
+
+    def __init__(self, plant, rtol: float):
+        self.stepper = GeneralStepper(plant, rtol=rtol)
+        self.scale = self.stepper.scale
+
+    def advance(self, q, p, x, u, h, du=0.0):
+        return tuple(float(v) for v in self.stepper.step((q, p, x), [u], h, {1: [du]} if du else None))
+
+    n_substeps = property(lambda self: self.stepper.n_substeps)
+    n_rejected = property(lambda self: self.stepper.n_rejected)
+    layer_applied = 0
 
 
 def load_before(rev: str):
@@ -107,7 +126,7 @@ def record(name: str, t0: float, h: float, hold: str, n: int):
     return plant, rtol, steps
 
 
-def replay(old, new, steps, h: float, derivative: bool, repeat: int):
+def replay(old, new, steps, h: float, derivative: bool, repeat: int, both_derivative: bool = False):
     """Both steppers on the recorded steps, step by step alternately, `repeat` times: per stepper, the mean
     over the steps of each step's fastest time (s), and the mean substeps, rejected substeps and layer
     share per step."""
@@ -118,7 +137,7 @@ def replay(old, new, steps, h: float, derivative: bool, repeat: int):
         for k, (eta, u, du) in enumerate(steps):
             for key, stepper in (("old", old), ("new", new)):
                 tic = time.perf_counter()
-                if key == "new" and derivative:
+                if derivative and (key == "new" or both_derivative):
                     stepper.advance(*eta, u, h, du)
                 else:
                     stepper.advance(*eta, u, h)
@@ -153,10 +172,17 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=5, help="alternating passes of before and after")
     ap.add_argument("--check", type=int, default=4, help="steps per row checked against Radau (0: none)")
     ap.add_argument("--profile", action="store_true", help="cProfile of the after stepper on each row")
+    ap.add_argument("--general", action="store_true", help="before: the working tree's GeneralStepper (numpy, any "
+                    "n) instead of PlantStepper at --before: the cost of one stepper for all plants")
     args = ap.parse_args(argv)
-    before = load_before(args.before)
-    print(f"before: components/plant_step.py at {args.before}; after: the working tree. "
-          f"{args.n} steps per row, each the fastest of {args.repeat} alternating runs.\n")
+    if args.general:
+        before = type("GeneralModule", (), {"PlantStepper": GeneralAsScalar})
+        print(f"before: GeneralStepper of the working tree (with the input derivative too); after: PlantStepper. "
+              f"{args.n} steps per row, each the fastest of {args.repeat} alternating runs.\n")
+    else:
+        before = load_before(args.before)
+        print(f"before: components/plant_step.py at {args.before}; after: the working tree. "
+              f"{args.n} steps per row, each the fastest of {args.repeat} alternating runs.\n")
     head = (f"{'scenario':26s} {'t0':>5s} {'h':>6s} {'input':9s} | {'us/step':>8s} {'substeps':>8s} {'rejected':>8s} "
             f"{'layer':>5s} {'err/tol':>7s} | {'us/step':>8s} {'substeps':>8s} {'rejected':>8s} {'layer':>5s} "
             f"{'err/tol':>7s} | {'before/after':>12s}")
@@ -167,11 +193,12 @@ def main(argv=None) -> None:
         plant, rtol, steps = record(name, t0, h, hold, args.n)
         derivative = hold == "1st order"
         old, new = before.PlantStepper(plant, rtol=rtol), PlantStepper(plant, rtol=rtol)
-        result = replay(old, new, steps, h, derivative, args.repeat)
+        result = replay(old, new, steps, h, derivative, args.repeat, args.general)
         b, a = result["old"], result["new"]
-        b_err = accuracy(plant, before.PlantStepper, rtol, steps, h, False, args.check) if not derivative else None
+        b_err = (accuracy(plant, before.PlantStepper, rtol, steps, h, derivative, args.check)
+                 if args.general or not derivative else None)
         a_err = accuracy(plant, PlantStepper, rtol, steps, h, derivative, args.check)
-        mark = "*" if derivative else " "
+        mark = "*" if derivative and not args.general else " "
         b_err_text = f"{b_err:7.3f}" if b_err is not None else f"{'-':>7s}"
         print(f"{name:26s} {t0 * 1e3:3.0f}ms {h:6.0e} {hold:9s} | {b[0] * 1e6:7.1f}{mark} {b[1]:8.2f} {b[2]:8.2f} "
               f"{b[3]:5.0%} {b_err_text} | {a[0] * 1e6:8.1f} {a[1]:8.2f} {a[2]:8.2f} {a[3]:5.0%} {a_err:7.3f} | "
@@ -180,7 +207,8 @@ def main(argv=None) -> None:
             profile = cProfile.Profile()
             profile.runcall(replay, new, new, steps, h, derivative, 1)
             pstats.Stats(profile).sort_stats("tottime").print_stats(8)
-    print("\n* the before stepper holds u: it cannot take the input derivative.")
+    if not args.general:
+        print("\n* the before stepper holds u: it cannot take the input derivative.")
 
 
 if __name__ == "__main__":

@@ -66,6 +66,9 @@ class _Printer(StrPrinter):
             raise ValueError(f"function {name} cannot be generated")
         return f"_{name}({', '.join(self._print(a) for a in expr.args)})"
 
+    def _print_Abs(self, expr):
+        return f"_fabs({self._print(expr.args[0])})"        # analytic for a complex step (described.fabs)
+
     def _print_Float(self, expr):
         return repr(float(expr))
 
@@ -165,7 +168,7 @@ def _matrix_literal(A: sympy.Matrix, writer: _Writer) -> str:
 
 def _imports(body: str, one: bool) -> list[str]:
     """The run-time imports of a generated module: its base class, the dispatchers its text uses, the records."""
-    used = {n for n in FUNCTIONS if re.search(rf"\b_{n}\b", body)}
+    used = {n for n in (*FUNCTIONS, "fabs") if re.search(rf"\b_{n}\b", body)}
     names = ["DescribedOneDOF" if one else "DescribedPlant", *used, "make_device"]
     names = sorted(names, key=lambda n: (not n[0].isupper(), n.lower()))
     lines = [f"from components.described import {n} as _{n}" for n in names]
@@ -222,6 +225,7 @@ def module_source(desc: Description, source_name: str | None = None) -> str:
     lines.append(_setup(desc, w, one))
     lines.append("")
     lines += _model_functions(desc, w, one)
+    lines += [""] + (_laws_source(desc, w) if one else _vector_laws_source(desc, w))
     while lines[-1] == "":
         lines.pop()
     lines += ["", ""]
@@ -363,6 +367,184 @@ def _model_functions(desc: Description, w: _Writer, one: bool) -> list[str]:
         fn("phi", [phi], None, "phi(x_e) of Assumptions 2/4 (eq. assHereg).", xn, unpack_x, "x_e", "_x0")
         fn("grad_phi", [phi.diff(x) for x in xs], (e,), "grad phi(x_e).", xn, unpack_x, "x_e", "_x0")
         fn("hess_phi", [phi.diff(a, b) for a in xs for b in xs], (e, e), "Hessian of phi.", xn, unpack_x, "x_e", "_x0")
+    return out
+
+
+# ---- the control laws (components.laws), printed as Python -------------------------------------------------
+# the generated law functions' arguments: the state, the feasible reference (q*, p*, x_e*, x_e*') and the jet
+# (q*, q*', q*'', q*''') of a one-degree-of-freedom plant
+LAW_STATE = ("q", "p", "x_e")
+LAW_REFERENCE = ("q_star", "p_star", "x_e_star", "x_e_star_dot")
+LAW_JET = ("q_star", "q_star_dot", "q_star_ddot", "q_star_dddot")
+INFEASIBLE = "_self.infeasible_reference(q_star)"
+
+
+def _hoist(exprs: Sequence[sympy.Expr], variables: set, prefix: str) -> tuple[list[tuple[sympy.Symbol, sympy.Expr]], list]:
+    """Loop-invariant code motion: every largest subexpression of `exprs` free of `variables` (the factors or
+    terms of a product or sum together) becomes a symbol prefix<k>; returns ([(symbol, expression)], exprs)."""
+    constants: dict[sympy.Expr, sympy.Symbol] = {}
+
+    def constant(e):
+        if e.is_Number or e.is_NumberSymbol:        # a literal stays; a parameter (_self._p_c) becomes a local
+            return e
+        if e not in constants:
+            constants[e] = sympy.Symbol(f"{prefix}{len(constants)}")
+        return constants[e]
+
+    def walk(e):
+        if not (e.free_symbols & variables):
+            return constant(e)
+        if e.is_Add or e.is_Mul:
+            fixed = [a for a in e.args if not (a.free_symbols & variables)]
+            moving = [walk(a) for a in e.args if a.free_symbols & variables]
+            return e.func(*([constant(e.func(*fixed))] if fixed else []), *moving)
+        if e.is_Atom:
+            return e
+        return e.func(*[walk(a) for a in e.args])
+    out = [walk(sympy.sympify(e)) for e in exprs]
+    return [(s, e) for e, s in constants.items()], out
+
+
+def _radicands(exprs: Sequence[sympy.Expr]) -> list[sympy.Expr]:
+    """The bases of the square roots in `exprs` (x_e* = s sqrt(2 F* / g) of Definition 1): real only when positive."""
+    found: list[sympy.Expr] = []
+    for e in exprs:
+        for a in sympy.preorder_traversal(e):
+            if a.is_Pow and a.exp.is_Rational and a.exp.q == 2 and a.base not in found:
+                found.append(a.base)
+    return found
+
+
+def _guarded_body(outputs: Sequence[sympy.Expr], temp: str, moving: set) -> tuple[list[str], list[str]]:
+    """cse'd lines of `outputs` in which every square root's radicand r_k that depends on the arguments `moving`
+    is computed first, as _r<k>, and checked (`if not _r<k>.real > 0: INFEASIBLE`, which raises); then the rest.
+    Returns (lines, outputs)."""
+    roots = [r for r in _radicands(outputs) if r.free_symbols & moving]
+    guards = {r: sympy.Symbol(f"_r{k}") for k, r in enumerate(roots)}
+    guarded = [sympy.sympify(e).xreplace(guards) for e in outputs]
+    temps, reduced = sympy.cse([*roots, *guarded], symbols=sympy.numbered_symbols(temp), order="none")
+    late = set(guards.values())
+    before, after = [], []
+    for t, v in temps:
+        if v.free_symbols & late:
+            late.add(t)
+            after.append(f"{t} = {_code(v)}")
+        else:
+            before.append(f"{t} = {_code(v)}")
+    checks = []
+    for g, e in zip(guards.values(), reduced):
+        checks += [f"{g} = {_code(e)}", f"if not {g}.real > 0:", f"    {INFEASIBLE}"]
+    return before + checks + after, [_code(e) for e in reduced[len(roots):]]
+
+
+def _law_names(desc: Description) -> dict:
+    """The description's q, p, x_e and reference symbols -> the generated functions' argument names."""
+    from .laws import _reference_symbols, jet_symbols
+    E = plant_expressions(desc)
+    names = dict(zip((E.q[0], E.p[0], E.x_e[0]), map(sympy.Symbol, LAW_STATE)))
+    names.update(zip((s[0] for s in _reference_symbols(desc)), map(sympy.Symbol, LAW_REFERENCE)))
+    names.update(zip(jet_symbols(desc), map(sympy.Symbol, LAW_JET)))
+    return names
+
+
+def _domain_check(q_min: str, q_max: str, indent: str) -> list[str]:
+    """q* inside the domain (check_state raises the DomainError), as OneDOFPlant.feasible_state needs."""
+    return [f"{indent}if not {q_min} < q_star.real < {q_max}:",
+            f"{indent}    _self.check_state(_np.array([q_star, 0.0, 0.0]))"]
+
+
+def _factory(w: _Writer, head: str, doc: str, u: sympy.Expr, moving: Sequence[str], prologue: Sequence[str] = (),
+             inner_prologue: Sequence[str] = ()) -> list[str]:
+    """A method `head` that computes every part of u free of the arguments `moving` once and returns
+    _u(*moving), which computes the rest (square roots guarded: _guarded_body)."""
+    variables = {sympy.Symbol(n) for n in moving}
+    constants, (inner,) = _hoist([u], variables, "_c")
+    outer_lines, outer_values = w.body([e for _, e in constants], {}, None) if constants else ([], [])
+    lines, (value,) = _guarded_body([inner], "_s", variables)
+    return [f"    def {head}:", f'        """{doc}"""', *[f"        {line}" for line in outer_lines],
+            *[f"        {s} = {v}" for (s, _), v in zip(constants, outer_values)], *prologue, "",
+            f"        def _u({', '.join(moving)}):", *inner_prologue, *[f"            {line}" for line in lines],
+            f"            return {value}", "", "        return _u", ""]
+
+
+def _laws_source(desc: Description, w: _Writer) -> list[str]:
+    """feasible_scalar (Definition 1) and, per law family, the factories law_<family>_at (a constant reference:
+    regulation) and law_<family>_tracking (along the reference's jet), printed from components.laws."""
+    from .laws import feasible_reference, law, tracking_law
+    names = _law_names(desc)
+    rename = {**names, **w.par}
+    jet, subs = feasible_reference(desc)
+    reference = [subs[s].xreplace(rename) for s in sorted(subs, key=list(names).index)]
+    lines, values = _guarded_body(reference, "_t", {sympy.Symbol(n) for n in LAW_JET})
+    out = [f"    def feasible_scalar(_self, {', '.join(LAW_JET)}):",
+           "        \"\"\"(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''): Definition 1 in closed form "
+           "(components.laws.feasible_reference).\"\"\"",
+           *_domain_check("_self.q_min", "_self.q_max", "        "), *[f"        {line}" for line in lines],
+           f"        return ({', '.join(values)})", ""]
+    for family in ["c1"] + (["u2"] if desc.Gamma is not None else []):
+        stated = law(desc, family)
+        gains = ", ".join(s.name for s in stated.gains)
+        out += _factory(w, f"law_{family}_at(_self, {gains}, {', '.join(LAW_REFERENCE)})",
+                        f"u(q, p, x_e) of {stated.equations} at a constant reference (q*, p*, x_e*, x_e*'), "
+                        "from components.laws.law.", stated.u[0].xreplace(rename), LAW_STATE)
+        stated = tracking_law(desc, family)
+        out += _factory(w, f"law_{family}_tracking(_self, {gains})",
+                        f"u(q, p, x_e, q*, q*', q*'', q*''') of {stated.equations}, from components.laws.tracking_law.",
+                        stated.u[0].xreplace(rename), LAW_STATE + LAW_JET,
+                        ["        _q_min, _q_max = _self.q_min, _self.q_max"],
+                        _domain_check("_q_min", "_q_max", "            "))
+    return out
+
+
+def _vector_factory(w: _Writer, head: str, doc: str, u: Sequence[sympy.Expr], setup: Sequence[str], args: str,
+                    unpack: Sequence[str], moving: set) -> list[str]:
+    """A method `head` that computes every part of the entries of u free of `moving` once and returns
+    _u(args), which computes the rest and returns u as an array (n_e)."""
+    constants, inner = _hoist(u, moving, "_c")
+    outer_lines, outer_values = w.body([e for _, e in constants], {}, None) if constants else ([], [])
+    temps, reduced = sympy.cse(inner, symbols=sympy.numbered_symbols("_s"), order="none")
+    return [f"    def {head}:", f'        """{doc}"""', *[f"        {line}" for line in setup],
+            *[f"        {line}" for line in outer_lines],
+            *[f"        {s} = {v}" for (s, _), v in zip(constants, outer_values)], "",
+            f"        def _u({args}):", *[f"            {line}" for line in unpack],
+            *[f"            {t} = {_code(v)}" for t, v in temps],
+            f"            return _np.array([{', '.join(_code(e) for e in reduced)}])", "", "        return _u", ""]
+
+
+def _unpack(names: Sequence[sympy.Symbol], source: str) -> str:
+    return f"({', '.join(s.name for s in names)},) = {source}"
+
+
+def _vector_laws_source(desc: Description, w: _Writer) -> list[str]:
+    """Per law family of components.laws, for a plant of any n_m, n_e (n_e <= 3: the law's symbolic inverses):
+    law_<family>_at(R_e_bar, D_d, W or k_c, eta*, x_e*') -> u(eta) (regulation: all but the state once) and
+    law_<family>_ref(R_e_bar, D_d, W or k_c) -> u(eta, eta*, x_e*') (tracking: the feasible reference of
+    Definition 1 given, DescribedPlant.feasible_state)."""
+    from .laws import _reference_symbols, law
+    if desc.n_e > 3:
+        return []
+    E = plant_expressions(desc)
+    n, e = 2 * desc.n_m + desc.n_e, desc.n_e
+    q_s, p_s, x_s, xd_s = _reference_symbols(desc)
+    state = [sympy.Symbol(f"_e{i}") for i in range(n)]
+    star = [sympy.Symbol(f"_y{i}") for i in range(n)]
+    rate = [sympy.Symbol(f"_yd{i}") for i in range(e)]
+    rename = {**dict(zip(E.eta, state)), **dict(zip((*q_s, *p_s, *x_s), star)), **dict(zip(xd_s, rate)), **w.par}
+    unpack_state = _unpack(state, "_np.asarray(eta).tolist()")
+    unpack_star = [_unpack(star, "_np.ravel(eta_star).tolist()"), _unpack(rate, "_np.ravel(x_e_star_dot).tolist()")]
+    out: list[str] = []
+    for family in ["c1"] + (["u2"] if desc.Gamma is not None else []):
+        stated = law(desc, family)
+        gains = [sympy.Symbol(f"_g{i}") for i in range(len(stated.gains))]
+        u = [x.xreplace({**rename, **dict(zip(stated.gains, gains))}) for x in stated.u]
+        third = "W" if family == "c1" else "k_c"
+        setup = [_unpack(gains, f"(*_np.ravel(R_e_bar).tolist(), *_np.ravel(D_d).tolist(), *_np.ravel({third}).tolist())")]
+        out += _vector_factory(w, f"law_{family}_at(_self, R_e_bar, D_d, {third}, eta_star, x_e_star_dot)",
+                               f"u(eta) of {stated.equations} at a constant feasible reference (eta*, x_e*'), from "
+                               "components.laws.law.", u, setup + unpack_star, "eta", [unpack_state], set(state))
+        out += _vector_factory(w, f"law_{family}_ref(_self, R_e_bar, D_d, {third})",
+                               f"u(eta, eta*, x_e*') of {stated.equations}, from components.laws.law.", u, setup,
+                               "eta, eta_star, x_e_star_dot", [unpack_state, *unpack_star], {*state, *star, *rate})
     return out
 
 

@@ -6,8 +6,7 @@ states the closed loop it enforces: eta' = F_d grad H_d(eta, t), eq. (closedloop
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -49,24 +48,6 @@ def quadratic(x: np.ndarray, center: np.ndarray, W: np.ndarray):
     return 0.5 * d @ W @ d
 
 
-@dataclass(frozen=True)
-class Scalars:
-    """The design matrices of a one-degree-of-freedom loop (n_m = n_e = 1) as plain numbers.
-
-    With every matrix 1 x 1, the matrix laws become scalar expressions; the controllers evaluate
-    those for OneDOFPlant plants (numpy's cost per call on 1 x 1 arrays would dominate a step of an
-    FMU), and the matrix forms for every other plant. The tests check both against eq. (closedloop).
-    """
-
-    m_inv: float        # M^-1
-    G_inv: float        # G_e^-1
-    JR_bar: float       # J_e - R_e_bar
-    RJ: float           # R_e - J_e
-    K_e: float          # R_e_bar - R_e, eq. (barRe)
-    D_d: float          # coupled damping, eq. (closedloop)
-    Gamma: float        # coupling of the target structure, eq. (closedloop)
-
-
 class Controller:
     """Base of the four controllers.
 
@@ -89,11 +70,36 @@ class Controller:
         self.K_e = self.R_e_bar - plant.R_e                       # eq. (barRe)
         self.JR_bar = plant.J_e - self.R_e_bar                    # J_e - R_e_bar, invertible
         self.G_inv = np.linalg.inv(plant.G_e)
-        self.scalars = None
-        if isinstance(plant, OneDOFPlant):
-            self.scalars = Scalars(1.0 / plant.m, float(self.G_inv[0, 0]), float(self.JR_bar[0, 0]),
-                                   float((plant.R_e - plant.J_e)[0, 0]), float(self.K_e[0, 0]),
-                                   float(self.D_d[0, 0]), float(self.Gamma[0, 0]))
+        self.scalars: Callable | None = None
+        """The law in scalars for a described one-degree-of-freedom plant: the function its generated module
+        prints from components.laws (components.codegen; no numpy on the per-step path), u = scalars(q, p, x_e)
+        for regulation and u = scalars(q, p, x_e, q*, dq*/dt, d2q*/dt2, d3q*/dt3) for tracking; None for any
+        other plant."""
+        self.vector_law: Callable | None = None
+        """The law of a described plant of any n (components.laws, printed by components.codegen): u(eta) for
+        regulation, u(eta, eta*, x_e*') for tracking (eta*, x_e*' of Definition 1, EMPlant.feasible_state);
+        None for plants written as Python classes (u_matrix)."""
+
+    def bind_law(self, family: str, gain, reference: np.ndarray | None = None) -> None:
+        """Set `scalars` (a described one-DOF plant) or `vector_law` (a described plant of any other n) from the
+        plant's generated law of `family` ("c1" or "u2", components.laws) with the gains R_e_bar, D_d and `gain`
+        (W or K_c), at the constant reference eta_d = `reference` (regulation: p* = 0, x_e*' = 0) or along the
+        reference (tracking). A plant written as a Python class has no generated laws: it keeps u_matrix."""
+        if not isinstance(self.plant, OneDOFPlant):
+            factory = getattr(self.plant, f"law_{family}_{'ref' if self.tracking else 'at'}", None)
+            if factory is not None:                          # a described plant of any n
+                self.vector_law = (factory(self.R_e_bar, self.D_d, gain) if self.tracking else
+                                   factory(self.R_e_bar, self.D_d, gain, reference, np.zeros(self.plant.n_e)))
+            return
+        factory = getattr(self.plant, f"law_{family}_{'tracking' if self.tracking else 'at'}", None)
+        if factory is None:
+            return
+        gains = (float(self.R_e_bar[0, 0]), float(self.D_d[0, 0]), float(np.asarray(gain)[0, 0]))
+        if self.tracking:
+            self.scalars = factory(*gains)
+        else:
+            q_d, _, x_ed = (float(v) for v in np.asarray(reference))
+            self.scalars = factory(*gains, q_d, 0.0, x_ed, 0.0)
 
     def F_d(self) -> np.ndarray:
         """Target structure matrix F_d = J_d - R_d, eqs. (closedloop), (Eq:R-J)."""
@@ -103,8 +109,13 @@ class Controller:
     def u(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
         """The control law at state eta (and reference jet, if tracking): u, shape (n_e,)."""
         if self.scalars is not None:
-            jet_values = None if jet is None else tuple(v[0] for v in (jet.q, jet.qd, jet.qdd, jet.qddd))
-            return np.array([self.u_scalar(eta[0], eta[1], eta[2], jet_values)])
+            jet_values = tuple(v[0] for v in (jet.q, jet.qd, jet.qdd, jet.qddd)) if self.tracking else ()
+            return np.array([self.scalars(eta[0], eta[1], eta[2], *jet_values)])
+        if self.vector_law is not None:
+            if self.tracking:
+                eta_s, x_e_s_dot = self.plant.feasible_state(jet)
+                return self.vector_law(eta, eta_s, x_e_s_dot)
+            return self.vector_law(eta)
         return self.u_matrix(eta, jet)
 
     def u_matrix(self, eta: np.ndarray, jet: Jet | None = None) -> np.ndarray:
@@ -112,9 +123,11 @@ class Controller:
         raise NotImplementedError
 
     def u_scalar(self, q, p, x_e, jet: tuple | None = None):
-        """The control law for a OneDOFPlant: u from the numbers q, p, x_e and the jet
-        (q*, dq*/dt, d2q*/dt2, d3q*/dt3) as numbers. Accepts complex numbers (complex-step derivatives)."""
-        raise NotImplementedError
+        """u for a described one-DOF plant from the numbers q, p, x_e and, tracking, the jet (q*, dq*/dt,
+        d2q*/dt2, d3q*/dt3): `scalars`, generated. Accepts complex numbers (complex-step derivatives)."""
+        if self.scalars is None:
+            raise ValueError(f"{self.name}: no law in scalars for the plant {self.plant.name} (u_matrix)")
+        return self.scalars(q, p, x_e, *jet) if self.tracking else self.scalars(q, p, x_e)
 
     def u_derivative(self, inputs: Sequence[float], directions: Sequence[float]):
         """sum_j du/dx_j v_j: the exact derivative of u along a direction v of the controller's inputs
@@ -138,11 +151,10 @@ class Controller:
         z = [complex(xi, h * vi) for xi, vi in zip(x, v)]
         n = self.plant.n
         if self.scalars is not None:
-            u = self.u_scalar(z[0], z[1], z[2], z[3:] if self.tracking else None)
-            return u.imag / h
+            return self.scalars(*z).imag / h
         m = self.plant.n_m
         jet = Jet(*np.reshape(np.array(z[n:]), (4, m))) if self.tracking else None
-        return np.imag(self.u_matrix(np.array(z[:n]), jet)) / h
+        return np.imag(self.u(np.array(z[:n]), jet)) / h
 
     def H_d(self, eta: np.ndarray, jet: Jet | None = None):
         """Desired Hamiltonian; written independently of u, so grad H_d can check the matching."""

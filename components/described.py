@@ -45,6 +45,15 @@ acos = _dispatch(math.acos, cmath.acos)
 pi = math.pi
 
 
+def _analytic_abs(z: complex) -> complex:
+    """|x| continued analytically off the real axis (x or -x by the sign of the real part), so that a complex
+    step through |x| (sympy's sqrt(x^2) = Abs(x) of real symbols) keeps the derivative sign(x) dx."""
+    return z if z.real >= 0 else -z
+
+
+fabs = _dispatch(math.fabs, _analytic_abs)
+
+
 class _Described:
     """What both described plant kinds share: parameters by name, the domain by inequality."""
 

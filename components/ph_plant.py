@@ -13,7 +13,6 @@ Every function accepts complex arrays, so derivatives can be checked by the comp
 """
 from __future__ import annotations
 
-import cmath
 import math
 from dataclasses import dataclass
 
@@ -307,30 +306,17 @@ class OneDOFPlant(EMPlant):
                                                      for v in (jet.q, jet.qd, jet.qdd, jet.qddd)))
         return np.array([q, p, x_e]), np.array([x_e_dot])
 
-    def feasible_scalar(self, q: float, qd: float, qdd: float, qddd: float) -> tuple[float, float, float, float]:
-        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''), Definition 1.
-
-        The p-row of eq. (open-loop elecmech) gives the electrical force the reference needs,
+    def feasible_scalar(self, q, qd, qdd, qddd) -> tuple:
+        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''), Definition 1: the p-row of
+        eq. (open-loop elecmech) gives the electrical force the reference needs,
             -1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) =: F*,
-        whose real root is x_e* = s sqrt(2 F* / g), g = -Psi'(q*), s = x_e_sign, when F* / g > 0.
-        Differentiating x_e*^2 = 2 F* / g in time: x_e*' = (F*' g - F* g') / (x_e* g^2).
-        """
-        # q and the jet may be complex (complex-step derivatives, Controller.u_derivative): the checks
-        # compare real parts (.real of a float is the float) and the square root is cmath's for them.
-        if not self.q_min < q.real < self.q_max:                 # False for nan and inf too
-            self.check_state(np.array([q, 0.0, 0.0]))                   # raises with the reason
-        m, R_m = self.m, self.__dict__.get("_R_m_scalar")
-        if R_m is None:                                     # plant matrices are fixed after construction
-            R_m = self._R_m_scalar = float(self.R_m[0, 0])
-        force = m * qdd + R_m * qd + self.dV(q)                       # F* (p-row)
-        force_dot = m * qddd + R_m * qdd + self.d2V(q) * qd             # dF*/dt
-        g = -self.dpsi(q)
-        g_dot = -self.d2psi(q) * qd
-        ratio = 2.0 * force / g
-        if not ratio.real > 0:
-            raise ValueError(
-                f"{self.name}: infeasible reference at q* = {q:.6g}: no real x_e* solves "
-                f"-1/2 Psi'(q*) x_e*^2 = m q*'' + R_m q*' + V'(q*) = {force:.6g} "
-                f"(needs (m q*'' + R_m q*' + V'(q*)) / (-Psi'(q*)) > 0)")
-        x_e = self.x_e_sign * (cmath.sqrt(ratio) if isinstance(ratio, complex) else math.sqrt(ratio))
-        return q, m * qd, x_e, (force_dot * g - force * g_dot) / (x_e * g * g)
+        whose real root is x_e* = s sqrt(2 F* / g), g = -Psi'(q*), s = x_e_sign, when F* / g > 0, and
+        x_e*' = (F*' g - F* g') / (x_e* g^2). Stated once, in components.laws.feasible_reference; a described
+        plant's generated module prints it (components.codegen). Takes complex numbers (complex step)."""
+        raise NotImplementedError(f"{self.name}: feasible_scalar is generated from a description (components.codegen)")
+
+    def infeasible_reference(self, q) -> None:
+        """Raise the ValueError of a reference jet at q* that no real x_e* holds (Definition 1)."""
+        raise ValueError(
+            f"{self.name}: infeasible reference at q* = {q.real:.6g}: no real x_e* solves -1/2 Psi'(q*) x_e*^2 = "
+            "m q*'' + R_m q*' + V'(q*) =: F* (needs F* / (-Psi'(q*)) > 0)")

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import closed_loop
-from .controller import Controller, Scalars, as_matrix, check_positive_definite, quadratic
-from .ph_plant import EMPlant, OneDOFPlant
+from .controller import Controller, as_matrix, check_positive_definite, quadratic
+from .ph_plant import EMPlant
 
 
 def law_c1(controller: Controller, eta: np.ndarray, grad_Phi: np.ndarray) -> np.ndarray:
@@ -22,11 +22,6 @@ def law_c1(controller: Controller, eta: np.ndarray, grad_Phi: np.ndarray) -> np.
     return controller.G_inv @ (controller.JR_bar @ grad_Phi
                                - controller.K_e @ plant.Psi(q) @ x_e
                                + controller.D_d @ plant.M_inv(q) @ p)
-
-
-def law_c1_scalar(plant: OneDOFPlant, s: Scalars, q, p, x_e, grad_Phi):
-    """eq. (c1) for n_m = n_e = 1: u = G_e^-1 { (J_e - R_e_bar) dPhi_1 - K_e Psi(q) x_e + D_d p / m }."""
-    return s.G_inv * (s.JR_bar * grad_Phi - s.K_e * plant.psi(q) * x_e + s.D_d * s.m_inv * p)
 
 
 class Proposition1(Controller):
@@ -50,16 +45,13 @@ class Proposition1(Controller):
         self.L1 = -np.linalg.solve(self.W, plant.Psi(q_d) @ x_ed)          # eq. (RegL), from (phi11)
         self.center = x_ed - self.L1                                       # Phi_1 minimiser
         self.c1 = -plant.H(self.eta_d) - quadratic(x_ed, self.center, self.W)   # c_1, H_d(eta_d) = 0
+        self.bind_law("c1", self.W, self.eta_d)                           # eq. (c1), generated (n = 1)
 
     def grad_Phi1(self, x_e):
         return self.W @ (x_e - self.center)
 
     def u_matrix(self, eta, jet=None):
         return law_c1(self, eta, self.grad_Phi1(self.plant.split(eta)[2]))
-
-    def u_scalar(self, q, p, x_e, jet=None):
-        W, center = float(self.W[0, 0]), float(self.center[0])
-        return law_c1_scalar(self.plant, self.scalars, q, p, x_e, W * (x_e - center))
 
     def H_d(self, eta, jet=None):
         x_e = self.plant.split(eta)[2]

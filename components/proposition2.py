@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import closed_loop
-from .controller import Controller, Scalars, as_matrix, check_positive_definite, hess_H_mech, quadratic
-from .ph_plant import EMPlant, OneDOFPlant
+from .controller import Controller, as_matrix, check_positive_definite, hess_H_mech, quadratic
+from .ph_plant import EMPlant
 
 
 class ZShaped(Controller):
@@ -28,8 +28,6 @@ class ZShaped(Controller):
         self.K_c = as_matrix(k_c, (plant.n_e, plant.n_e), "k_c", self.name)
         check_positive_definite(self.K_c, "k_c", self.name)
         self.A = -plant.G_e.T @ np.linalg.inv(self.JR_bar).T                # z = A (Gamma^T q + x_e)
-        if self.scalars is not None:
-            self.A_s, self.K_c_s = float(self.A[0, 0]), float(self.K_c[0, 0])
 
     def z(self, eta):
         """eq. (z)."""
@@ -66,14 +64,10 @@ class Proposition2(ZShaped):
         z_d = self.z(self.eta_d)
         self.L = z_d - np.linalg.solve(self.K_c, self.G_inv @ self.JR_bar @ plant.grad_phi(x_ed))
         self.c2 = -(plant.V(q_d) + quadratic(z_d, self.L, self.K_c) + plant.phi(x_ed))
+        self.bind_law("u2", self.K_c, self.eta_d)                         # eq. (u2), generated (n = 1)
 
     def u_matrix(self, eta, jet=None):
         return law_u2(self, eta, self.K_c @ (self.z(eta) - self.L))
-
-    def u_scalar(self, q, p, x_e, jet=None):
-        s = self.scalars
-        z = self.A_s * (s.Gamma * q + x_e)                                  # eq. (z)
-        return law_u2_scalar(self.plant, s, q, p, x_e, self.K_c_s * (z - float(self.L[0])))
 
     def H_d(self, eta, jet=None):
         q, p, x_e = self.plant.split(eta)                                   # eq. (energyrug2)
@@ -91,11 +85,4 @@ def law_u2(controller: Controller, eta: np.ndarray, grad_z_Phi: np.ndarray) -> n
     return (controller.G_inv @ ((plant.R_e - plant.J_e) @ plant.Psi(q) @ x_e
                                 + (controller.D_d - controller.Gamma.T) @ plant.M_inv(q) @ p
                                 + controller.JR_bar @ plant.grad_phi(x_e))
-            - grad_z_Phi)
-
-
-def law_u2_scalar(plant: OneDOFPlant, s: Scalars, q, p, x_e, grad_z_Phi):
-    """eq. (u2) for n_m = n_e = 1:
-    u = G_e^-1 { (R_e - J_e) Psi(q) x_e + (D_d - Gamma) p / m + (J_e - R_e_bar) dphi(x_e) } - dPhi/dz."""
-    return (s.G_inv * (s.RJ * plant.psi(q) * x_e + (s.D_d - s.Gamma) * s.m_inv * p + s.JR_bar * plant.dphi(x_e))
             - grad_z_Phi)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .controller import Controller, as_matrix, check_positive_definite, quadratic
 from .ph_plant import EMPlant, Jet
-from .proposition1 import law_c1, law_c1_scalar
+from .proposition1 import law_c1
 
 
 class Theorem2(Controller):
@@ -28,7 +28,7 @@ class Theorem2(Controller):
         super().__init__(plant, R_e_bar, D_d, np.zeros((plant.n_m, plant.n_e)))
         self.W = as_matrix(np.eye(plant.n_e) if W is None else W, (plant.n_e, plant.n_e), "W", self.name)
         check_positive_definite(self.W, "W", self.name)
-        self.W_s = float(self.W[0, 0]) if self.scalars is not None else None
+        self.bind_law("c1", self.W)                                    # eq. (u1-track), generated (n = 1)
 
     def L2(self, jet: Jet) -> np.ndarray:
         """Offset L_2(t) from the feasibility condition (feasibleT2)."""
@@ -46,13 +46,6 @@ class Theorem2(Controller):
     def u_matrix(self, eta, jet):
         x_e = self.plant.split(eta)[2]
         return law_c1(self, eta, self.W @ (x_e - self._offsets(jet)[0]))     # eq. (u1-track)
-
-    def u_scalar(self, q, p, x_e, jet):
-        """eq. (u1-track) with L_2 of eq. (feasibleT2), n_m = n_e = 1."""
-        plant, s, W = self.plant, self.scalars, self.W_s
-        q_s, p_s, x_s, x_s_dot = plant.feasible_scalar(*jet)
-        L2 = ((x_s_dot - s.D_d * s.m_inv * p_s) / s.JR_bar - plant.psi(q_s) * x_s) / W   # eq. (feasibleT2)
-        return law_c1_scalar(plant, s, q, p, x_e, W * (x_e - x_s + L2))
 
     def H_d(self, eta, jet):
         x_e = self.plant.split(eta)[2]

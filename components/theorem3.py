@@ -16,7 +16,7 @@ import numpy as np
 
 from .controller import quadratic
 from .ph_plant import EMPlant, Jet
-from .proposition2 import ZShaped, law_u2, law_u2_scalar
+from .proposition2 import ZShaped, law_u2
 
 
 class Theorem3(ZShaped):
@@ -33,6 +33,7 @@ class Theorem3(ZShaped):
 
     def __init__(self, plant: EMPlant, R_e_bar, k_c=20.0, D_d=0.0):
         super().__init__(plant, R_e_bar, k_c, D_d)
+        self.bind_law("u2", self.K_c)                                  # eq. (tracker2), generated (n = 1)
 
     def L3(self, jet: Jet) -> np.ndarray:
         """Offset L_3(t) from the feasibility condition (eq. L2); derivation in docs/derivations.md."""
@@ -45,15 +46,6 @@ class Theorem3(ZShaped):
 
     def u_matrix(self, eta, jet):
         return law_u2(self, eta, self.K_c @ (self.z(eta) - self.L3(jet)))   # eq. (tracker2)
-
-    def u_scalar(self, q, p, x_e, jet):
-        """eq. (tracker2) with L_3 from eq. (L2), n_m = n_e = 1."""
-        plant, s, A = self.plant, self.scalars, self.A_s
-        q_s, p_s, x_s, x_s_dot = plant.feasible_scalar(*jet)
-        rhs = s.G_inv * ((s.D_d - s.Gamma) * s.m_inv * p_s + s.JR_bar * plant.dphi(x_s) - x_s_dot)
-        L3 = A * (s.Gamma * q_s + x_s) - rhs / self.K_c_s                 # eq. (L2), erratum 2
-        z = A * (s.Gamma * q + x_e)                                         # eq. (z)
-        return law_u2_scalar(plant, s, q, p, x_e, self.K_c_s * (z - L3))
 
     def H_d(self, eta, jet):
         q, p, x_e = self.plant.split(eta)                                   # eq. (HdClass4)

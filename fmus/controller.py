@@ -137,8 +137,8 @@ class ControllerSlave(EMSlave):
             controller = self.controller
             if controller is None:                       # before initialization: from the current values
                 controller = self.make_controller()
-            if controller.scalars is not None:                # one-DOF plant: the law in scalars
-                u = float(controller.u_scalar(x[0], x[1], x[2], x[3:] if self.tracking else None))
+            if controller.scalars is not None:                # one-DOF plant: the generated law in scalars
+                u = float(controller.scalars(*x))
             else:
                 u = float(self.law(controller, x)[0])
         except Exception as exc:                                      # noqa: BLE001 - reported, never raised

@@ -6,13 +6,15 @@ A native FMU has the model identifier, variables, value references, units, descr
 values, ModelStructure and DefaultExperiment of its pythonfmu twin (the modelDescription is written by
 fmus/model_description.py from the twin's slave class, with `Native`: needsExecutionTool="false", the
 generator's name, <SourceFiles>), and carries
-    sources/       emc_fmi2.c, emc_framework.h (fmus/native/: the framework), model.c, emc_model.h
-                   (components.c_codegen: the model functions), config.c, emc_config.h (from the twin's
-                   variables: the value references), the FMI 2.0 headers
+    sources/       emc_fmi2.c, emc_fmi2.h (fmus/native/: the framework), emc_plant.c, emc_framework.h (the
+                   plant kind; emc_controller.c, emc_controller.h for a controller, emc_reference.c,
+                   emc_reference.h for the Reference), model.c, emc_model.h (components.c_codegen: the model
+                   functions), config.c, emc_config.h (from the twin's variables: the value references), the
+                   FMI 2.0 headers
     binaries/linux64/<identifier>.so   compiled from sources/ (-std=c99 -Wall -Wextra -Werror; no libpython)
     binaries/win64/<identifier>.dll    cross-compiled with mingw-w64 where it is installed (imports only
                                        KERNEL32.dll and msvcrt.dll)
-It provides Model Exchange only (docs/native-fmus.md says what is missing).
+Model Exchange and Co-Simulation in one binary (docs/native-fmus.md; it says what is missing).
 """
 from __future__ import annotations
 
@@ -36,9 +38,10 @@ from .model_description import Native, model_description
 NATIVE = Path(__file__).resolve().parent / "native"
 PLANTS = Path(__file__).resolve().parents[1] / "components" / "plants"
 GENERATOR = "emcosim native C generator (components.c_codegen, fmus/native)"
-FRAMEWORK = ("emc_fmi2.c", "emc_framework.h")
+COMMON = ("emc_fmi2.c", "emc_fmi2.h")      # the framework: the FMI functions of every kind (fmus/native)
+FRAMEWORK = (*COMMON, "emc_plant.c", "emc_framework.h")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-SOURCE_FILES = ("emc_fmi2.c", "model.c", "config.c")          # compiled together (<SourceFiles>)
+SOURCE_FILES = ("emc_fmi2.c", "emc_plant.c", "model.c", "config.c")          # compiled together (<SourceFiles>)
 CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-fPIC", "-shared")
 # win64: Debian's gcc-mingw-w64-x86-64; mingw's own printf (msvcrt's knows no %zu), no PE timestamp and stripped
 # and a fixed image base (reproducible: the same bytes from any build folder; auto-image-base hashes the path),
@@ -228,8 +231,8 @@ def _package(slave, framework: tuple[str, ...], generated: dict[str, str], sourc
 
 
 # ---- controllers ------------------------------------------------------------------------------------
-CONTROLLER_FRAMEWORK = ("emc_controller.c", "emc_controller.h")
-CONTROLLER_SOURCE_FILES = ("emc_controller.c", "controller.c", "model.c", "config.c")
+CONTROLLER_FRAMEWORK = (*COMMON, "emc_controller.c", "emc_controller.h")
+CONTROLLER_SOURCE_FILES = ("emc_fmi2.c", "emc_controller.c", "controller.c", "model.c", "config.c")
 
 
 def controller_config(slave, desc: Description, design, guid: str) -> tuple[str, str]:
@@ -316,8 +319,8 @@ def _build_controller(slave, desc: Description, design_name: str, dest: Path | s
 
 
 # ---- the Reference ---------------------------------------------------------------------------------
-REFERENCE_FRAMEWORK = ("emc_reference.c", "emc_reference.h")
-REFERENCE_SOURCE_FILES = ("emc_reference.c", "config.c")
+REFERENCE_FRAMEWORK = (*COMMON, "emc_reference.c", "emc_reference.h")
+REFERENCE_SOURCE_FILES = ("emc_fmi2.c", "emc_reference.c", "config.c")
 
 
 def reference_config(slave, guid: str) -> tuple[str, str]:

@@ -78,7 +78,8 @@ def run_in_c_host(exe: Path, fmu: Path, workdir: Path, inputs: dict[str, float],
     args = [str(exe), str(folder / "binaries" / "linux64" / f"{identifier}.so"), identifier,
             (folder / "resources").as_uri(), repr(h), str(n), str(len(inputs)), *(str(vr[k]) for k in inputs),
             str(len(outputs)), *(str(vr[k]) for k in outputs), *(repr(v) for v in inputs.values())]
-    return _run(args, unload, env)
+    guid = read_model_description(str(folder / "modelDescription.xml")).guid
+    return _run(args, unload, {"C_HOST_GUID": guid, **(env or {})})
 
 
 def _run(args: list[str], unload: bool = False, env: dict[str, str] | None = None

@@ -10,6 +10,7 @@ import numpy as np
 
 from components.parameters import Parameter, resolve
 from components.ph_plant import DomainError, EMPlant, OneDOFPlant
+from tests import hand_written_laws
 
 MEMS_PARAMETERS = {p.name: p for p in [
     Parameter("c0", 15e-6, "m", "position offset of the capacitor: capacitance is c1 (q + c0)"),
@@ -22,7 +23,13 @@ MEMS_PARAMETERS = {p.name: p for p in [
 ]}
 
 
-class HandMEMS(OneDOFPlant):
+class _HandOneDOF(OneDOFPlant):
+    """Definition 1 in closed form, written by hand (tests/hand_written_laws.py)."""
+
+    feasible_scalar = hand_written_laws.feasible_scalar
+
+
+class HandMEMS(_HandOneDOF):
     """MEMS optical switch with the paper's Section 7 parameters as defaults."""
 
     name = "MEMS optical switch"
@@ -72,7 +79,7 @@ MAGLEV_PARAMETERS = {p.name: p for p in [
 ]}
 
 
-class HandMaglev(OneDOFPlant):
+class HandMaglev(_HandOneDOF):
     """Magnetic levitation system with the paper's Section 7.2 parameters as defaults."""
 
     name = "magnetic levitation system"

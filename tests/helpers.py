@@ -104,14 +104,19 @@ def random_state_near(eta_star, rng, plant):
 def richardson_derivative(fun, x: np.ndarray, v: np.ndarray, scale: float, decades=(12, -12)):
     """d/de fun(x + e v) at e = 0 by central differences with one Richardson step, (4 D(h/2) - D(h)) / 3,
     for h = scale * 10^k, k = decades[0] .. decades[1]: the estimate of the three consecutive steps that
-    agree best (steps whose evaluation fails, e.g. outside the domain, are skipped)."""
+    agree best (steps whose evaluation fails, e.g. outside the domain, are skipped, and so are steps whose
+    differences are below 1e-10 of |fun(x)|: there the rounding of fun, a few ulps, is > 1e-6 of the estimate,
+    and consecutive estimates can agree exactly, by the same rounding, on a wrong value)."""
     estimates = []
+    size = float(np.max(np.abs(np.atleast_1d(fun(x)))))
     for k in range(decades[0], decades[1] - 1, -1):
         h = scale * 10.0 ** k
         try:
-            D1 = (fun(x + h * v) - fun(x - h * v)) / (2 * h)
-            D2 = (fun(x + 0.5 * h * v) - fun(x - 0.5 * h * v)) / h
+            d1, d2 = fun(x + h * v) - fun(x - h * v), fun(x + 0.5 * h * v) - fun(x - 0.5 * h * v)
+            D1, D2 = d1 / (2 * h), d2 / h
             R = np.atleast_1d((4 * D2 - D1) / 3)
+            if float(np.max(np.abs(np.atleast_1d(d2)))) < 1e-10 * size:
+                R = None                                   # rounding-dominated
         except (ValueError, ArithmeticError):
             R = None
         estimates.append(R if R is not None and np.all(np.isfinite(R)) else None)

@@ -149,7 +149,7 @@ def test_erratum3_printed_set_point_condition_has_no_equilibrium():
     printed.L = printed.z(eta_d)                                   # grad_z Phi_2(z_d) = 0
     scale = np.abs(eta_d) + 1e-6
     assert np.abs(differentiation.gradient(printed.H_d, eta_d, scale)[2]) == pytest.approx(eta_d[2] ** 2, rel=1e-12)
-    assert np.linalg.norm(P.f(eta_d, printed.u(eta_d))) > 1e-3
+    assert np.linalg.norm(P.f(eta_d, printed.u_matrix(eta_d))) > 1e-3        # u_matrix reads the L set here
     assert np.linalg.norm(P.f(eta_d, ctrl.u(eta_d))) < 1e-14
 
 

@@ -85,3 +85,30 @@ def test_instances_are_independent_across_threads(tmp_path: Path, name: str) -> 
                          env={"TSAN_OPTIONS": "halt_on_error=1"})
     assert run.returncode == 0, run.stderr[-3000:]
     assert "ThreadSanitizer" not in run.stderr and "0 mismatches" in run.stderr
+
+
+@pytest.mark.slow                          # ~3 CPU-s: the quick set has no room left
+def test_reference_under_sanitizers(tmp_path: Path) -> None:
+    """The Reference FMU's sources with tests/native/sanitize_reference.c under AddressSanitizer and
+    UndefinedBehaviorSanitizer: both interfaces, bad kinds, types and arguments, the FMU-state pool, a corrupt
+    serialized state; every status as expected and the sanitizers silent."""
+    from fmus.native_build import REFERENCE_SOURCE_FILES, build_native_reference
+    if not _sanitizers_work(tmp_path):
+        pytest.skip("gcc cannot build or run AddressSanitizer programs here (libasan, libubsan)")
+    fmu = build_native_reference(tmp_path)
+    sources = tmp_path / "sources"
+    sources.mkdir()
+    with zipfile.ZipFile(fmu) as z:
+        for member in z.namelist():
+            if member.startswith("sources/"):
+                (sources / Path(member).name).write_bytes(z.read(member))
+    host = Path(__file__).resolve().parent / "native" / "sanitize_reference.c"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-g", "-O1", "-fno-omit-frame-pointer",
+                    "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-I", str(sources), str(host),
+                    *(str(sources / f) for f in REFERENCE_SOURCE_FILES), "-o", str(tmp_path / "host"), "-lm"],
+                   check=True, capture_output=True, text=True)
+    run = subprocess.run([str(tmp_path / "host")], capture_output=True, text=True, timeout=120,
+                         env={"ASAN_OPTIONS": "detect_leaks=1:abort_on_error=0", "UBSAN_OPTIONS": "print_stacktrace=1"})
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr
+    assert "0 mismatches" in run.stderr

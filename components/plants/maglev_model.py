@@ -7,6 +7,7 @@ import numpy as _np
 
 from components.described import DescribedOneDOF as _DescribedOneDOF
 from components.described import make_device as _make_device
+from components.described import sqrt as _sqrt
 from components.device import VariableSpec as _VariableSpec
 from components.parameters import Parameter as _Parameter
 
@@ -105,6 +106,123 @@ class Maglev(_DescribedOneDOF):
 
     def hess_phi(_self, x_e):
         return _np.array([[_self.d2phi(x_e[0])]])
+
+    def feasible_scalar(_self, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''): Definition 1 in closed form (components.laws.feasible_reference)."""
+        if not _self.q_min < q_star.real < _self.q_max:
+            _self.check_state(_np.array([q_star, 0.0, 0.0]))
+        _t1 = 1.0*_sqrt(_self._p_k)
+        _r0 = 2.0*_self._p_b + 2.0*q_star_ddot*_self._p_m + 2.0*q_star_dot*_self._p_R_m
+        if not _r0.real > 0:
+            _self.infeasible_reference(q_star)
+        _t0 = _sqrt(_r0)
+        return (q_star, q_star_dot*_self._p_m, _t0*_t1, _t1*(q_star_dddot*_self._p_m + q_star_ddot*_self._p_R_m)/_t0)
+
+    def law_c1_at(_self, R_e_bar, D_d, W, q_star, p_star, x_e_star, x_e_star_dot):
+        """u(q, p, x_e) of eq. (c1), eq. (u1-track), eq. (feasibleT2) at a constant reference (q*, p*, x_e*, x_e*'), from components.laws.law."""
+        _t0 = D_d/_self._p_m
+        _t1 = 1.0/_self._p_k
+        _c0 = _t0
+        _c1 = -x_e_star + (-(x_e_star_dot - _t0*p_star)/R_e_bar - _t1*x_e_star*(_self._p_c - q_star))/W
+        _c2 = -R_e_bar*W
+        _c3 = _self._p_c
+        _c4 = -_t1*(R_e_bar - _self._p_R_e)
+
+        def _u(q, p, x_e):
+            return _c0*p + _c2*(_c1 + x_e) + _c4*x_e*(_c3 - q)
+
+        return _u
+
+    def law_c1_tracking(_self, R_e_bar, D_d, W):
+        """u(q, p, x_e, q*, q*', q*'', q*''') of eq. (c1), eq. (u1-track), eq. (feasibleT2), Definition 1, from components.laws.tracking_law."""
+        _t0 = _sqrt(_self._p_k)
+        _t1 = 1.0*_t0
+        _c0 = D_d/_self._p_m
+        _c1 = -D_d
+        _c2 = 2.0*_self._p_m
+        _c3 = 2.0*_self._p_R_m
+        _c4 = 2.0*_self._p_b
+        _c5 = _self._p_m
+        _c6 = _self._p_R_m
+        _c7 = _t1
+        _c8 = -1.0/R_e_bar
+        _c9 = _self._p_c
+        _c10 = -1.0/_t0
+        _c11 = 1.0/W
+        _c12 = -_t1
+        _c13 = -R_e_bar*W
+        _c14 = -(R_e_bar - _self._p_R_e)/_self._p_k
+        _q_min, _q_max = _self.q_min, _self.q_max
+
+        def _u(q, p, x_e, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+            if not _q_min < q_star.real < _q_max:
+                _self.check_state(_np.array([q_star, 0.0, 0.0]))
+            _r0 = _c4 + _c2*q_star_ddot + _c3*q_star_dot
+            if not _r0.real > 0:
+                _self.infeasible_reference(q_star)
+            _s0 = _sqrt(_r0)
+            return _c0*p + _c13*(x_e + _c11*(_c8*(_c1*q_star_dot + _c7*(_c5*q_star_dddot + _c6*q_star_ddot)/_s0) + _c10*_s0*(_c9 - q_star)) + _c12*_s0) + _c14*x_e*(_c9 - q)
+
+        return _u
+
+    def law_u2_at(_self, R_e_bar, D_d, k_c, q_star, p_star, x_e_star, x_e_star_dot):
+        """u(q, p, x_e) of eq. (u2), eq. (tracker2), eq. (z), eq. (L2) at a constant reference (q*, p*, x_e*, x_e*'), from components.laws.law."""
+        _t0 = 1.0/_self._p_k
+        _t1 = 0.5*_t0
+        _t2 = 1.0/R_e_bar
+        _t3 = 1.0/_self._p_m
+        _t4 = D_d - _t1
+        _c0 = -R_e_bar
+        _c1 = _t1
+        _c2 = _t2
+        _c3 = (-x_e_star_dot - R_e_bar*x_e_star**2 + _t3*_t4*p_star)/k_c - _t2*(x_e_star + _t1*q_star)
+        _c4 = -k_c
+        _c5 = _t3*_t4
+        _c6 = _self._p_c
+        _c7 = _t0*_self._p_R_e
+
+        def _u(q, p, x_e):
+            return _c0*x_e**2 + _c4*(_c3 + _c2*(x_e + _c1*q)) + _c5*p + _c7*x_e*(_c6 - q)
+
+        return _u
+
+    def law_u2_tracking(_self, R_e_bar, D_d, k_c):
+        """u(q, p, x_e, q*, q*', q*'', q*''') of eq. (u2), eq. (tracker2), eq. (z), eq. (L2), Definition 1, from components.laws.tracking_law."""
+        _t0 = 1.0/_self._p_k
+        _t1 = 0.5*_t0
+        _t2 = 1.0/R_e_bar
+        _t3 = D_d - _t1
+        _t4 = 1.0*_sqrt(_self._p_k)
+        _c0 = -R_e_bar
+        _c1 = _t1
+        _c2 = _t2
+        _c3 = _t3
+        _c4 = 2.0*_self._p_m
+        _c5 = 2.0*_self._p_R_m
+        _c6 = 2.0*_self._p_b
+        _c7 = -1.0*R_e_bar*_self._p_k
+        _c8 = _self._p_m
+        _c9 = _self._p_R_m
+        _c10 = -_t4
+        _c11 = 1.0/k_c
+        _c12 = _t4
+        _c13 = -_t2
+        _c14 = -k_c
+        _c15 = _t3/_self._p_m
+        _c16 = _self._p_c
+        _c17 = _t0*_self._p_R_e
+        _q_min, _q_max = _self.q_min, _self.q_max
+
+        def _u(q, p, x_e, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+            if not _q_min < q_star.real < _q_max:
+                _self.check_state(_np.array([q_star, 0.0, 0.0]))
+            _r0 = _c6 + _c4*q_star_ddot + _c5*q_star_dot
+            if not _r0.real > 0:
+                _self.infeasible_reference(q_star)
+            _s0 = _sqrt(_r0)
+            return _c0*x_e**2 + _c14*(_c11*(_c3*q_star_dot + _c7*_r0 + _c10*(_c8*q_star_dddot + _c9*q_star_ddot)/_s0) + _c13*(_c1*q_star + _c12*_s0) + _c2*(x_e + _c1*q)) + _c15*p + _c17*x_e*(_c16 - q)
+
+        return _u
 
 
 GAIN_PARAMETERS: dict[str, _Parameter] = {}

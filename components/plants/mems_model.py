@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as _np
 
 from components.described import DescribedOneDOF as _DescribedOneDOF
+from components.described import fabs as _fabs
 from components.described import make_device as _make_device
+from components.described import sqrt as _sqrt
 from components.device import VariableSpec as _VariableSpec
 from components.parameters import Parameter as _Parameter
 
@@ -84,6 +86,82 @@ class MEMS(_DescribedOneDOF):
         """Domain margins g_j(q) > 0."""
         (_q0,) = q
         return (_q0 + _self._p_c0,)
+
+    def feasible_scalar(_self, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+        """(q*, p*, x_e*, x_e*') of the reference jet (q*, q*', q*'', q*'''): Definition 1 in closed form (components.laws.feasible_reference)."""
+        if not _self.q_min < q_star.real < _self.q_max:
+            _self.check_state(_np.array([q_star, 0.0, 0.0]))
+        _t0 = q_star*_self._p_a1
+        _t1 = q_star_ddot*_self._p_m
+        _t2 = q_star_dot*_self._p_R_m
+        _t3 = _self._p_a2*q_star**3
+        _t5 = q_star + _self._p_c0
+        _t6 = _fabs(_t5)
+        _t7 = 1.0/_self._p_c1
+        _r0 = 2.0*_t0 + 2.0*_t1 + 2.0*_t2 + 2.0*_t3
+        if not _r0.real > 0:
+            _self.infeasible_reference(q_star)
+        _t4 = _sqrt(_r0)
+        return (q_star, q_star_dot*_self._p_m, 1.0*_t4*_t6*_sqrt(_self._p_c1), 1.0*_t5**4*_self._p_c1**((3/2))*(_t7*(q_star_dddot*_self._p_m + q_star_ddot*_self._p_R_m + q_star_dot*(_self._p_a1 + 3.0*_self._p_a2*q_star**2))/_t5**2 + 2.0*_t7*q_star_dot*(_t0 + _t1 + _t2 + _t3)/_t5**3)/(_t4*_t6))
+
+    def law_c1_at(_self, R_e_bar, D_d, W, q_star, p_star, x_e_star, x_e_star_dot):
+        """u(q, p, x_e) of eq. (c1), eq. (u1-track), eq. (feasibleT2) at a constant reference (q*, p*, x_e*, x_e*'), from components.laws.law."""
+        _t0 = D_d/_self._p_m
+        _t1 = 1.0/_self._p_c1
+        _c0 = _t0
+        _c1 = -x_e_star + (-(x_e_star_dot - _t0*p_star)/R_e_bar - _t1*x_e_star/(q_star + _self._p_c0))/W
+        _c2 = -R_e_bar*W
+        _c3 = _self._p_c0
+        _c4 = -_t1*(R_e_bar - 1.0/_self._p_r_e)
+        _c5 = _self._p_r_e
+
+        def _u(q, p, x_e):
+            return _c5*(_c0*p + _c2*(_c1 + x_e) + _c4*x_e/(_c3 + q))
+
+        return _u
+
+    def law_c1_tracking(_self, R_e_bar, D_d, W):
+        """u(q, p, x_e, q*, q*', q*'', q*''') of eq. (c1), eq. (u1-track), eq. (feasibleT2), Definition 1, from components.laws.tracking_law."""
+        _t0 = 1.0/_self._p_c1
+        _t1 = _sqrt(_self._p_c1)
+        _c0 = D_d/_self._p_m
+        _c1 = -D_d
+        _c2 = _self._p_c0
+        _c3 = 2.0*_self._p_a1
+        _c4 = 2.0*_self._p_m
+        _c5 = 2.0*_self._p_R_m
+        _c6 = 2.0*_self._p_a2
+        _c7 = _self._p_m
+        _c8 = _self._p_R_m
+        _c9 = 3.0*_self._p_a2
+        _c10 = _self._p_a1
+        _c11 = _t0
+        _c12 = _self._p_a2
+        _c13 = 2.0*_t0
+        _c14 = 1.0*_self._p_c1**((3/2))
+        _c15 = -1.0/R_e_bar
+        _c16 = -1.0/_t1
+        _c17 = 1.0/W
+        _c18 = -1.0*_t1
+        _c19 = -R_e_bar*W
+        _c20 = -_t0*(R_e_bar - 1.0/_self._p_r_e)
+        _c21 = _self._p_r_e
+        _q_min, _q_max = _self.q_min, _self.q_max
+
+        def _u(q, p, x_e, q_star, q_star_dot, q_star_ddot, q_star_dddot):
+            if not _q_min < q_star.real < _q_max:
+                _self.check_state(_np.array([q_star, 0.0, 0.0]))
+            _s0 = q_star**3
+            _s2 = _c2 + q_star
+            _s3 = _fabs(_s2)
+            _r0 = _c3*q_star + _c4*q_star_ddot + _c5*q_star_dot + _c6*_s0
+            if not _r0.real > 0:
+                _self.infeasible_reference(q_star)
+            _s1 = _sqrt(_r0)
+            _s4 = _s1*_s3
+            return _c21*(_c0*p + _c19*(x_e + _c17*(_c15*(_c1*q_star_dot + _c14*_s2**4*(_c11*(_c7*q_star_dddot + _c8*q_star_ddot + q_star_dot*(_c10 + _c9*q_star**2))/_s2**2 + _c13*q_star_dot*(_c10*q_star + _c12*_s0 + _c7*q_star_ddot + _c8*q_star_dot)/_s2**3)/(_s1*_s3)) + _c16*_s4/_s2) + _c18*_s4) + _c20*x_e/(_c2 + q))
+
+        return _u
 
 
 GAIN_PARAMETERS: dict[str, _Parameter] = {p.name: p for p in [

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import re
+from itertools import combinations
 from typing import Sequence
 
 import sympy
@@ -108,7 +109,7 @@ class CWriter:
         temps, reduced = sympy.cse(finite, symbols=sympy.numbered_symbols("T_"), order="none")
         used = set().union(*(e.free_symbols for e in finite)) if finite else set()
         arguments = ", ".join(f"const double *{array}" for array, _, _ in self.arrays)
-        lines = [f"/* {doc} */", f"void emc_{name}({arguments}, double *out)", "{"]
+        lines = [f"/* {doc.replace('*/', '* /')} */", f"void emc_{name}({arguments}, double *out)", "{"]
         for array, _, symbols in self.arrays:
             for i, s in enumerate(symbols):
                 c = self.rename[s]
@@ -220,34 +221,616 @@ def _check_values(name: str, parameters: Sequence, what: str) -> str:
     return "\n".join(lines)
 
 
+def _design_gains(desc: Description, design: str, gain_names: Sequence[str]) -> dict[str, sympy.Matrix]:
+    """q_d, R_e_bar, D_d and W or k_c of `design` as matrices in its FMU's gain parameters (components.described.
+    make_device names the entries: q_d, R_e_bar, ... for 1 x 1, else q_d_1, R_e_bar_1_2, ...), a device's own form
+    (MEMS: R_e_bar = 1/rbar_e), the numbers of the [controller] table, or W = I (the paper's Phi_1 / Theta_1)."""
+    from .description import gain_table
+    defaults, forms, _ = gain_table(desc)
+    symbols = {n: sympy.Symbol(n, real=True) for n in gain_names}
+    m, e = desc.n_m, desc.n_e
+    shapes = {"q_d": (m, 1), "R_e_bar": (e, e), "D_d": (e, m), "k_c": (e, e), "W": (e, e)}
+
+    def entry(gain: str, i: int, j: int) -> str:
+        r, c = shapes[gain]
+        if r * c == 1:
+            return gain
+        return f"q_d_{i + 1}" if gain == "q_d" else f"{gain}_{i + 1}_{j + 1}"
+
+    out = {}
+    for gain, (r, c) in shapes.items():
+        names = [[entry(gain, i, j) for j in range(c)] for i in range(r)]
+        if all(n in symbols for row in names for n in row):
+            out[gain] = sympy.Matrix(r, c, lambda i, j: symbols[names[i][j]])
+        elif gain in forms:
+            out[gain] = sympy.Matrix(forms[gain][0]).reshape(r, c)
+        elif gain in defaults:
+            out[gain] = sympy.Matrix(r, c, lambda i, j: sympy.Float(defaults[gain][i][j]))
+        elif gain == "W":
+            out[gain] = sympy.eye(e)
+        elif gain != "q_d" or design in ("Proposition1", "Proposition2"):
+            raise ValueError(f"{desc.source}: design {design} has no gain {gain}")
+    return out
+
+
+STRICT_PH = {"Proposition1": 1, "Proposition2": 0, "Theorem2": -1, "Theorem3": -1}   # eq. (pHcondition)
+
+
 def controller_c_source(desc: Description, design: str, gain_parameters: Sequence) -> str:
-    """C99 of a one-degree-of-freedom controller FMU's law (components.laws.design_law), with the signature
-    void emc_ctrl_<name>(const double *par, const double *gain, const double *in, double *out):
+    """C99 of a controller FMU's law (any n_m, n_e, M(q)): the law of components.laws in the FMU's inputs and gains,
+    the feasible reference of Definition 1 (closed form: components.laws.closed_reference; Newton for n_e = n_m:
+    components.laws.newton_reference, the iteration of components.described.DescribedPlant._solve_real), and
 
-        ctrl_u           u (n_e = 1), eq. (c1) / (u1-track) or eq. (u2) / (tracker2)
-        ctrl_du          du / d in (the inputs q, p, x_e and, tracking, the jet)
-        ctrl_reference   (margin of q* to the domain's boundary, 2 F* / g of Definition 1)
-        ctrl_conditions  (R_e_bar, k_c, R_m - D_d^2 / (4 R_e_bar), R_m)
+        const char *emc_ctrl_law(par, gain, in, u, du)   u (n_e) and, if du is not NULL, du/d in (n_e x inputs,
+                                                         row-major); NULL, or why the reference is not feasible
+        int emc_ctrl_check(par, gain, why, size)         the controller's construction checks (components.
+                                                         closed_loop, components.controller): 0, or 1 and why
+        int emc_check_gains(gain)                        the gain parameters' conditions
 
-    and int emc_check_gains(const double *gain): the gain parameters' conditions."""
-    from .laws import design_law
+    (fmus/native/emc_controller.h). ValueError for a plant whose feasible reference has no native form yet."""
+    from .laws import (
+        FAMILY,
+        TRACKING,
+        closed_reference,
+        jet_vector,
+        law,
+        least_reference_branch,
+        newton_reference,
+        operating_point_costs,
+    )
     names = tuple(p.name for p in gain_parameters)
-    L = design_law(desc, design, names)
+    family, tracking = FAMILY[design], TRACKING[design]
+    m, e = desc.n_m, desc.n_e
+    if e < m:
+        raise ValueError(f"{desc.source}: n_e = {e} < n_m = {m}: the force balance of Definition 1 is overdetermined "
+                         "(the pythonfmu controller has no feasible reference either)")
+    n = 2 * m + e
+    G = _design_gains(desc, design, names)
+    weight = "W" if family == "c1" else "k_c"
+    stated = law(desc, family)
+    values = [*G["R_e_bar"], *G["D_d"], *G[weight]]
+    u = stated.u.xreplace(dict(zip(stated.gains, values)))
     E = plant_expressions(desc)
-    w = CWriter(E, [("par", "P_", desc.parameter_symbols), ("gain", "K_", L.gains), ("in", "I_", L.inputs)])
+    gains = tuple(sympy.Symbol(x, real=True) for x in names)
+    jet = jet_vector(desc)
+    par = ("par", "P_", desc.parameter_symbols)
+    gain = ("gain", "K_", gains)
+    w_law = CWriter(E, [par, gain, ("in", "I_", E.eta), ("ref", "R_", stated.reference)])
+    variables = list(E.eta) + list(stated.reference)
     functions = [
-        w.function("ctrl_u", [L.u], f"u of {design} (components.laws)"),
-        w.function("ctrl_du", list(L.jacobian), "du / d(inputs), symbolic"),
-        w.function("ctrl_reference", [L.reference_margin, L.reference_ratio],
-                   "Definition 1's feasibility: (margin of q* to the domain's boundary, 2 F* / g)"),
-        w.function("ctrl_conditions", [L.R_e_bar, L.k_c, L.ph_margin, desc.R_m[0, 0]],
-                   "(R_e_bar, k_c, R_m - D_d^2 / (4 R_e_bar), R_m): components.closed_loop's checks"),
-        _check_values("check_gains", gain_parameters, "gain parameter"),
-        design_checks_c_source(desc, design, gain_parameters),
+        w_law.function("ctrl_u", list(u), f"u of {design}: {stated.equations} (components.laws)"),
+        w_law.function("ctrl_du", [u[i].diff(s) for i in range(e) for s in variables],
+                       "du / d(q, p, x_e, q*, p*, x_e*, x_e*') (row-major), symbolic"),
     ]
+    if not tracking:
+        q_d = G["q_d"]
+        w_jet = CWriter(E, [par, gain, ("in", "I_", E.eta)])
+        functions.append(w_jet.function("ctrl_jet", [*q_d, *([sympy.Integer(0)] * (3 * m))],
+                                        "the constant reference jet (q_d, 0, 0, 0) of regulation"))
+    w_ref = CWriter(E, [par, gain, ("jet", "J_", jet)])
+    rule = desc.operating_point
+    tables = ""
+    if e > m and (rule is None or rule.kind != "bias"):
+        if any(sympy.simplify(D[i, j]) != 0 for D in (E.Psi, *E.dPsi) for i in range(e) for j in range(e) if i != j):
+            raise ValueError(f"{desc.source}: an operating point for n_e = {e} > n_m = {m} needs diagonal Psi(q) and "
+                             "dPsi/dq_k (components.operating_point): not available for coupled coils")
+        kind, n_conditions = "least", 0
+        vertices = list(combinations(range(e), m))
+        branches = vertices + [T for k in range(m + 1, e + 1) for T in combinations(range(e), k)]
+        star = dict(zip(desc.q_symbols, jet[:m]))
+        A = [E.dPsi[k][i, i].xreplace(star) / 2 for k in range(m) for i in range(e)]
+        margin = sympy.oo if E.domain_margin is None else E.domain_margin.xreplace(star)
+        F = _required_force(desc)
+        functions.append(w_ref.function("ctrl_select", [margin, *F, *A, *(-F), *operating_point_costs(desc)],
+                                        "(margin of q*, F*, A_ki = (dPsi/dq_k)_ii / 2, b = -F*, the rule's costs) at q*"))
+        for index, ports in enumerate(branches):
+            w, state = least_reference_branch(desc, ports)
+            functions.append(w_ref.function(f"ctrl_state_{index}", [*w, *state],
+                                            f"(w, q*, p*, x_e*, x_e*') with the ports {ports} energized"))
+            if tracking:
+                functions.append(w_ref.function(f"ctrl_dstate_{index}", [x.diff(j) for x in state for j in jet],
+                                                f"d(q*, p*, x_e*, x_e*') / d jet with the ports {ports} (row-major)"))
+        tables = _branch_tables(branches, e, len(vertices), tracking)
+    elif (m == 1 and e == 1 and desc.constant_mass) or e > m:
+        R = closed_reference(desc)
+        kind, n_conditions = "closed", len(R.conditions)
+        functions.append(w_ref.function("ctrl_feasibility", [R.margin, *R.F, *R.conditions],
+                                        "(margin of q* to the domain's boundary, F*, what must be > 0: Definition 1)"))
+        functions.append(w_ref.function("ctrl_state", list(R.state), "(q*, p*, x_e*, x_e*') of Definition 1"))
+        if tracking:
+            functions.append(w_ref.function("ctrl_dstate", [s.diff(j) for s in R.state for j in jet],
+                                            "d(q*, p*, x_e*, x_e*') / d jet (row-major)"))
+    else:
+        N = newton_reference(desc)
+        kind, n_conditions = "newton", 0
+        functions.append(w_ref.function("ctrl_force", [N.margin, *N.F, *(x for D in N.dPsi for x in D)],
+                                        "(margin of q* to the domain's boundary, F*, dPsi/dq_k(q*) k-major)"))
+        w_x = CWriter(E, [par, gain, ("jet", "J_", jet), ("xs", "X_", N.x + N.x_dot)])
+        functions.append(w_x.function("ctrl_rate", [*N.A, *N.b, *N.p], "(A, b, p*): A x_e*' = b, p* = M(q*) q*'"))
+        if tracking:
+            functions.append(w_x.function(
+                "ctrl_sens", [*N.R_1.jacobian(jet), *N.R_2.jacobian(jet), *N.R_2.jacobian(N.x), *N.p.jacobian(jet)],
+                "(dR_1/d jet, dR_2/d jet, dR_2/d x_e*, dp*/d jet), row-major: the implicit function theorem"))
+    Rs = (G["R_e_bar"] + G["R_e_bar"].T) / 2
+    check_weight = not (weight == "W" and G["W"] == sympy.eye(e))
+    S = desc.R_m - G["D_d"].T * Rs.inv() * G["D_d"] / 4 if STRICT_PH[design] >= 0 else sympy.zeros(m, m)
+    functions.append(CWriter(E, [par, gain]).function(
+        "ctrl_matrices", [*Rs, *G[weight], *S, *desc.R_m],
+        "(R_e_bar's symmetric part, the weight W or K_c, R_m - 1/4 D_d^T R_e_bar^-1 D_d, R_m): components.closed_loop"))
+    functions.append(_check_values("check_gains", gain_parameters, "gain parameter"))
     head = [f"/* Generated by components.c_codegen from {desc.source}: the {design} law; do not edit. */",
-            "#include <math.h>", '#include "emc_controller.h"', ""]
-    return "\n".join(head) + "\n" + "\n\n".join(functions) + "\n"
+            "#include <math.h>", "#include <stdio.h>", "#include <string.h>", '#include "emc_controller.h"', "",
+            f"#define NM {m}", f"#define NE {e}", f"#define NS {n}", f"#define NR {2 * m + 2 * e}",
+            f"#define NJ {4 * m}", f"#define NC {n_conditions}", "#define NI EMC_N_CONTROLLER_INPUTS",
+            f"#define X_E_SIGN {float(desc.x_e_sign)!r}", f"#define TRACKING {int(tracking)}",
+            f"#define STRICT_PH {STRICT_PH[design]}", f"#define CHECK_WEIGHT {int(check_weight)}",
+            f'#define WEIGHT_NAME "{weight}"', ""]
+    if design_checks_available(desc):
+        functions.append(design_checks_c_source(desc, design, gain_parameters))
+    glue = _CONTROLLER_GLUE + {"closed": _CLOSED_REFERENCE, "newton": _NEWTON_REFERENCE,
+                               "least": _SOLVE + tables + _LEAST_REFERENCE}[kind] + _CONTROLLER_LAW
+    return "\n".join(head) + "\n" + "\n\n".join(functions) + "\n" + glue
+
+
+def _required_force(desc: Description) -> sympy.Matrix:
+    """F* of components.laws.force_jet (the force the reference needs)."""
+    from .laws import force_jet
+    return force_jet(desc)[1]
+
+
+def _branch_tables(branches: list[tuple[int, ...]], e: int, n_vertices: int, tracking: bool) -> str:
+    """The C tables of a least rule's branches: their ports and their generated functions."""
+    rows = ", ".join("{" + ", ".join(str(i) for i in (*ports, *([-1] * (e - len(ports))))) + "}" for ports in branches)
+    lines = [f"#define NB {n_vertices}                  /* the vertices: n_m of the n_e ports */",
+             f"#define NT {len(branches)}                  /* and the even shares of more ports */",
+             "typedef void (*emc_branch)(const double *par, const double *gain, const double *jet, double *out);",
+             f"static const int BRANCH_SIZE[NT] = {{{', '.join(str(len(b)) for b in branches)}}};",
+             f"static const int BRANCH_PORTS[NT][NE] = {{{rows}}};",
+             f"static const emc_branch STATE[NT] = {{{', '.join(f'emc_ctrl_state_{i}' for i in range(len(branches)))}}};"]
+    if tracking:
+        lines.append(f"static const emc_branch DSTATE[NT] = "
+                     f"{{{', '.join(f'emc_ctrl_dstate_{i}' for i in range(len(branches)))}}};")
+    return "\n".join(lines) + "\n"
+
+
+# The hand-written C around the generated functions: bounded loops only (stated in each comment).
+_CONTROLLER_GLUE = r"""
+#define DIM (NM > NE ? NM : NE)
+#define NEWTON_ITERATIONS 100        /* components.described.DescribedPlant._solve_real */
+#define JACOBI_SWEEPS 64             /* cyclic Jacobi: quadratic convergence, a few sweeps in practice */
+
+#define OUTSIDE "q* is outside the domain"
+#define INFEASIBLE "no real x_e* balances the force the reference needs"
+/* the smallest eigenvalue of the symmetric part of an n x n matrix (numpy's eigvalsh), by cyclic Jacobi rotations
+   (at most JACOBI_SWEEPS sweeps) */
+static double min_eigenvalue(int n, const double *M)
+{
+    double a[DIM * DIM], low;
+    int i, j, k, sweep;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) a[i * n + j] = 0.5 * (M[i * n + j] + M[j * n + i]);
+    for (sweep = 0; sweep < JACOBI_SWEEPS; sweep++) {
+        double off = 0.0, diagonal = 0.0;
+        for (i = 0; i < n; i++) {
+            diagonal += a[i * n + i] * a[i * n + i];
+            for (j = i + 1; j < n; j++) off += a[i * n + j] * a[i * n + j];
+        }
+        if (!(off > 1e-34 * diagonal)) break;
+        for (i = 0; i < n; i++)
+            for (j = i + 1; j < n; j++) {
+                double theta, t, c, s, tau, apq = a[i * n + j];
+                if (apq == 0.0) continue;
+                theta = (a[j * n + j] - a[i * n + i]) / (2.0 * apq);
+                t = fabs(theta) > 1e150 ? 0.5 / theta : (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+                c = 1.0 / sqrt(t * t + 1.0);
+                s = t * c;
+                tau = s / (1.0 + c);
+                a[i * n + i] -= t * apq;
+                a[j * n + j] += t * apq;
+                a[i * n + j] = a[j * n + i] = 0.0;
+                for (k = 0; k < n; k++) {
+                    double akp, akq;
+                    if (k == i || k == j) continue;
+                    akp = a[k * n + i];
+                    akq = a[k * n + j];
+                    a[k * n + i] = a[i * n + k] = akp - s * (akq + tau * akp);
+                    a[k * n + j] = a[j * n + k] = akq + s * (akp - tau * akq);
+                }
+            }
+    }
+    low = a[0];
+    for (i = 1; i < n; i++) low = fmin(low, a[i * n + i]);
+    return low;
+}
+
+static int all_zero(int n, const double *v)
+{
+    int i;
+    for (i = 0; i < n; i++)
+        if (v[i] != 0.0) return 0;
+    return 1;
+}
+
+/* the constructor's checks of components.controller and components.closed_loop: R_e_bar > 0 (eq. barRe), the
+   weight W or K_c symmetric positive definite, eq. (pHcondition) (strictly for Proposition 1, weakly for
+   Proposition 2); 0, or 1 with the reason in why */
+int emc_ctrl_check(const double *par, const double *gain, char *why, size_t size)
+{
+    double g[2 * NE * NE + 2 * NM * NM], low, scale = 1.0;
+    int i, j;
+    emc_ctrl_matrices(par, gain, g);
+    low = min_eigenvalue(NE, g);
+    if (!(low > 0.0)) {
+        snprintf(why, size, "R_e_bar violates R_e_bar = R_e + K_e > 0 (eq. barRe; smallest eigenvalue %.3g)", low);
+        return 1;
+    }
+    if (CHECK_WEIGHT) {
+        const double *W = g + NE * NE;
+        for (i = 0; i < NE; i++)
+            for (j = 0; j < NE; j++)
+                if (!(fabs(W[i * NE + j] - W[j * NE + i]) <= 1e-8 + 1e-5 * fabs(W[j * NE + i]))) {
+                    snprintf(why, size, "%s violates %s > 0 (symmetric positive definite): it is not symmetric",
+                             WEIGHT_NAME, WEIGHT_NAME);
+                    return 1;
+                }
+        low = min_eigenvalue(NE, W);
+        if (!(low > 0.0)) {
+            snprintf(why, size, "%s violates %s > 0 (symmetric positive definite; smallest eigenvalue %.3g)",
+                     WEIGHT_NAME, WEIGHT_NAME, low);
+            return 1;
+        }
+    }
+    if (STRICT_PH >= 0) {
+        low = min_eigenvalue(NM, g + 2 * NE * NE);
+        for (i = 0; i < NM * NM; i++) scale = fmax(scale, fabs(g[2 * NE * NE + NM * NM + i]));
+        if (STRICT_PH == 1 ? !(low > 0.0) : !(low >= -1e-12 * scale)) {
+            snprintf(why, size, "D_d violates the pH condition (eq. pHcondition) R_m - 1/4 D_d^T R_e_bar^-1 D_d %s 0 "
+                     "(smallest eigenvalue %.3g)", STRICT_PH == 1 ? ">" : ">=", low);
+            return 1;
+        }
+    }
+    return 0;
+}
+"""
+
+_CLOSED_REFERENCE = r"""
+/* (q*, p*, x_e*, x_e*') of the jet in closed form (components.laws.closed_reference) and, if dref is not NULL, its
+   Jacobian in the jet (NR x NJ); NULL, or why it does not exist */
+static const char *reference(const double *par, const double *gain, const double *jet, double *ref, double *dref)
+{
+    double feasibility[1 + NM + NC];
+    int i;
+    emc_ctrl_feasibility(par, gain, jet, feasibility);
+    if (!(feasibility[0] > 0.0)) return OUTSIDE;
+    if (!TRACKING && all_zero(NM, feasibility + 1)) {   /* grad V(q_d) = 0: x_e_d = 0 (EMPlant.equilibrium) */
+        memset(ref, 0, sizeof(double) * NR);
+        for (i = 0; i < NM; i++) ref[i] = jet[i];
+        return NULL;
+    }
+    for (i = 0; i < NC; i++)
+        if (!(feasibility[1 + NM + i] > 0.0)) return INFEASIBLE;
+    emc_ctrl_state(par, gain, jet, ref);
+#if TRACKING
+    if (dref != NULL) emc_ctrl_dstate(par, gain, jet, dref);
+#else
+    (void)dref;
+#endif
+    return NULL;
+}
+"""
+
+_SOLVE = r"""
+/* A x = b for an n x n matrix A (row-major, destroyed) and nrhs right-hand sides b (n x nrhs, row-major, replaced by
+   the solution), by Gaussian elimination with partial pivoting: 0, or -1 when A is singular */
+static int solve(int n, double *A, int nrhs, double *b)
+{
+    int i, j, k, r;
+    for (k = 0; k < n; k++) {
+        int pivot = k;
+        for (i = k + 1; i < n; i++)
+            if (fabs(A[i * n + k]) > fabs(A[pivot * n + k])) pivot = i;
+        if (!(fabs(A[pivot * n + k]) > 0.0) || !isfinite(A[pivot * n + k])) return -1;
+        if (pivot != k) {
+            for (j = 0; j < n; j++) { double t = A[k * n + j]; A[k * n + j] = A[pivot * n + j]; A[pivot * n + j] = t; }
+            for (r = 0; r < nrhs; r++) {
+                double t = b[k * nrhs + r];
+                b[k * nrhs + r] = b[pivot * nrhs + r];
+                b[pivot * nrhs + r] = t;
+            }
+        }
+        for (i = k + 1; i < n; i++) {
+            double f = A[i * n + k] / A[k * n + k];
+            for (j = k; j < n; j++) A[i * n + j] -= f * A[k * n + j];
+            for (r = 0; r < nrhs; r++) b[i * nrhs + r] -= f * b[k * nrhs + r];
+        }
+    }
+    for (k = n - 1; k >= 0; k--)
+        for (r = 0; r < nrhs; r++) {
+            double s = b[k * nrhs + r];
+            for (j = k + 1; j < n; j++) s -= A[k * n + j] * b[j * nrhs + r];
+            b[k * nrhs + r] = s / A[k * n + k];
+        }
+    return 0;
+}
+
+"""
+
+_NEWTON_REFERENCE = _SOLVE + r"""
+#define NEWTON_FAILED "Newton's method (100 iterations) found no real x_e* that balances the force the reference needs"
+#define SINGULAR "the force balance's Jacobian A_ki = (dPsi/dq_k x_e*)_i is singular"
+
+/* the 2-norm condition number of an n x n matrix (numpy's cond): the ratio of its largest to its smallest singular
+   value, by one-sided Jacobi rotations (at most JACOBI_SWEEPS sweeps); INFINITY for a singular matrix */
+static double condition(int n, const double *A)
+{
+    double U[DIM * DIM], high = 0.0, low = INFINITY;
+    int i, p, q, sweep;
+    memcpy(U, A, sizeof(double) * (size_t)(n * n));
+    for (sweep = 0; sweep < JACOBI_SWEEPS; sweep++) {
+        int rotated = 0;
+        for (p = 0; p < n; p++)
+            for (q = p + 1; q < n; q++) {
+                double alpha = 0.0, beta = 0.0, gamma = 0.0, zeta, t, c, s;
+                for (i = 0; i < n; i++) {
+                    alpha += U[i * n + p] * U[i * n + p];
+                    beta += U[i * n + q] * U[i * n + q];
+                    gamma += U[i * n + p] * U[i * n + q];
+                }
+                if (!(fabs(gamma) > 1e-15 * sqrt(alpha * beta))) continue;
+                rotated = 1;
+                zeta = (beta - alpha) / (2.0 * gamma);
+                t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
+                c = 1.0 / sqrt(1.0 + t * t);
+                s = c * t;
+                for (i = 0; i < n; i++) {
+                    double up = U[i * n + p], uq = U[i * n + q];
+                    U[i * n + p] = c * up - s * uq;
+                    U[i * n + q] = s * up + c * uq;
+                }
+            }
+        if (!rotated) break;
+    }
+    for (p = 0; p < n; p++) {
+        double norm = 0.0;
+        for (i = 0; i < n; i++) norm += U[i * n + p] * U[i * n + p];
+        norm = sqrt(norm);
+        high = fmax(high, norm);
+        low = fmin(low, norm);
+    }
+    return low > 0.0 ? high / low : INFINITY;
+}
+
+static double norm2(int n, const double *v)
+{
+    double s = 0.0;
+    int i;
+    for (i = 0; i < n; i++) s += v[i] * v[i];
+    return sqrt(s);
+}
+
+
+/* r_k = -1/2 x^T dPsi_k x - F_k */
+static void residual(const double *F, const double *D, const double *x, double *r)
+{
+    int i, j, k;
+    for (k = 0; k < NM; k++) {
+        double s = 0.0;
+        for (i = 0; i < NE; i++)
+            for (j = 0; j < NE; j++) s += x[i] * D[(k * NE + i) * NE + j] * x[j];
+        r[k] = -0.5 * s - F[k];
+    }
+}
+
+/* the real x with -1/2 x^T dPsi_k x = F_k (k = 1..n_m) by damped Newton from x_e_sign * (a common magnitude): the
+   iteration, start, tolerances and failures of components.described.DescribedPlant._solve_real; at most
+   NEWTON_ITERATIONS iterations of at most 14 step halvings each. 0, or -1 when it finds none */
+static int newton(const double *F, const double *D, double *x)
+{
+    double max_F = 0.0, max_D = 0.0, scale, r[NE], A[NE * NE], LU[NE * NE], step[NE], x_new[NE], trial[NE], norm, t;
+    int i, j, k, iteration;
+    for (k = 0; k < NM; k++) max_F = fmax(max_F, fabs(F[k]));
+    for (k = 0; k < NM * NE * NE; k++) max_D = fmax(max_D, fabs(D[k]));
+    scale = sqrt(2.0 * max_F / fmax(max_D, 1e-300));
+    if (scale == 0.0) scale = 1.0;
+    for (i = 0; i < NE; i++) x[i] = X_E_SIGN * scale;
+    for (iteration = 0; iteration < NEWTON_ITERATIONS; iteration++) {
+        residual(F, D, x, r);
+        for (k = 0; k < NM; k++)
+            for (i = 0; i < NE; i++) {
+                double s = 0.0;
+                for (j = 0; j < NE; j++) s += D[(k * NE + i) * NE + j] * x[j];
+                A[k * NE + i] = -s;
+            }
+        for (k = 0; k < NE * NE; k++)
+            if (!isfinite(A[k])) return -1;
+        if (condition(NE, A) > 1e14) return -1;
+        memcpy(LU, A, sizeof LU);
+        memcpy(step, r, sizeof step);
+        if (solve(NE, LU, 1, step) != 0) return -1;
+        t = 1.0;
+        norm = norm2(NM, r);
+        while (t > 1e-4) {
+            for (i = 0; i < NE; i++) x_new[i] = x[i] - t * step[i];
+            residual(F, D, x_new, trial);
+            if (norm2(NM, trial) < norm) break;
+            t /= 2;
+        }
+        memcpy(x, x_new, sizeof x_new);
+        for (i = 0; i < NE; i++) trial[i] = t * step[i];
+        if (norm2(NE, trial) <= 1e-15 * fmax(norm2(NE, x), 1e-300)) {
+            residual(F, D, x, r);
+            return norm2(NM, r) <= 1e-10 * fmax(norm2(NM, F), 1e-300) ? 0 : -1;
+        }
+    }
+    return -1;
+}
+
+/* (q*, p*, x_e*, x_e*') of the jet, x_e* by Newton (components.laws.newton_reference) and, if dref is not NULL, its
+   Jacobian in the jet (NR x NJ) by the implicit function theorem; NULL, or why it does not exist */
+static const char *reference(const double *par, const double *gain, const double *jet, double *ref, double *dref)
+{
+    double force[1 + NM + NM * NE * NE], xs[2 * NE], rate[NE * NE + NE + NM], A[NE * NE];
+    int i;
+    emc_ctrl_force(par, gain, jet, force);
+    if (!(force[0] > 0.0)) return OUTSIDE;
+    memset(ref, 0, sizeof(double) * NR);
+    for (i = 0; i < NM; i++) ref[i] = jet[i];
+    if (!TRACKING && all_zero(NM, force + 1)) return NULL;   /* grad V(q_d) = 0: x_e_d = 0 (EMPlant.equilibrium) */
+    if (newton(force + 1, force + 1 + NM, xs) != 0) return NEWTON_FAILED;
+    for (i = 0; i < NE; i++) xs[NE + i] = 0.0;
+    emc_ctrl_rate(par, gain, jet, xs, rate);
+    memcpy(A, rate, sizeof A);
+    memcpy(xs + NE, rate + NE * NE, sizeof(double) * NE);
+    if (solve(NE, A, 1, xs + NE) != 0) return SINGULAR;
+    memcpy(ref + NM, rate + NE * NE + NE, sizeof(double) * NM);
+    memcpy(ref + 2 * NM, xs, sizeof xs);
+#if TRACKING
+    if (dref != NULL) {
+        double sens[2 * NE * NJ + NE * NE + NM * NJ], dx[NE * NJ], dxd[NE * NJ];
+        int j, k;
+        emc_ctrl_sens(par, gain, jet, xs, sens);
+        memcpy(dx, sens, sizeof dx);                                   /* d x_e* / d jet = A^-1 dR_1/d jet */
+        memcpy(A, rate, sizeof A);
+        if (solve(NE, A, NJ, dx) != 0) return SINGULAR;
+        for (i = 0; i < NE; i++)                                       /* dR_2/d jet + dR_2/d x_e* (d x_e* / d jet) */
+            for (j = 0; j < NJ; j++) {
+                double s = sens[NE * NJ + i * NJ + j];
+                for (k = 0; k < NE; k++) s += sens[2 * NE * NJ + i * NE + k] * dx[k * NJ + j];
+                dxd[i * NJ + j] = s;
+            }
+        memcpy(A, rate, sizeof A);
+        if (solve(NE, A, NJ, dxd) != 0) return SINGULAR;
+        memset(dref, 0, sizeof(double) * NR * NJ);
+        for (i = 0; i < NM; i++) dref[i * NJ + i] = 1.0;
+        memcpy(dref + NM * NJ, sens + 2 * NE * NJ + NE * NE, sizeof(double) * NM * NJ);
+        memcpy(dref + 2 * NM * NJ, dx, sizeof dx);
+        for (i = 0; i < NE * NJ; i++) dref[(2 * NM + NE) * NJ + i] = -dxd[i];
+    }
+#else
+    (void)dref;
+#endif
+    return NULL;
+}
+"""
+
+_LEAST_REFERENCE = r"""
+/* the determinant of an n x n matrix (numpy's det: LU with partial pivoting) */
+static double determinant(int n, const double *M)
+{
+    double a[NE * NE], det = 1.0;
+    int i, j, k;
+    memcpy(a, M, sizeof(double) * (size_t)(n * n));
+    for (k = 0; k < n; k++) {
+        int pivot = k;
+        for (i = k + 1; i < n; i++)
+            if (fabs(a[i * n + k]) > fabs(a[pivot * n + k])) pivot = i;
+        if (a[pivot * n + k] == 0.0) return 0.0;
+        if (pivot != k) {
+            for (j = 0; j < n; j++) { double t = a[k * n + j]; a[k * n + j] = a[pivot * n + j]; a[pivot * n + j] = t; }
+            det = -det;
+        }
+        det *= a[k * n + k];
+        for (i = k + 1; i < n; i++) {
+            double f = a[i * n + k] / a[k * n + k];
+            for (j = k; j < n; j++) a[i * n + j] -= f * a[k * n + j];
+        }
+    }
+    return det;
+}
+
+/* (q*, p*, x_e*, x_e*') of the jet with the least-energy or least-input operating point (components.operating_point
+   .solve: the vertex of least cost among the NB choices of n_m ports, the even share where several ports tie) and,
+   if dref is not NULL, its Jacobian in the jet; NULL, or why it does not exist */
+static const char *reference(const double *par, const double *gain, const double *jet, double *ref, double *dref)
+{
+    double s[1 + NM + NM * NE + NM + NE], cost[NB], out[NE + NR], best = INFINITY;
+    const double *A = s + 1 + NM, *b = A + NM * NE, *psi = b + NM;
+    int tied[NE], i, k, v, found = 0, count = 0, chosen = -1;
+    emc_ctrl_select(par, gain, jet, s);
+    if (!(s[0] > 0.0)) return OUTSIDE;
+    if (!TRACKING && all_zero(NM, s + 1)) {        /* grad V(q_d) = 0: x_e_d = 0 (EMPlant.equilibrium) */
+        memset(ref, 0, sizeof(double) * NR);
+        for (i = 0; i < NM; i++) ref[i] = jet[i];
+        return NULL;
+    }
+    for (v = 0; v < NB; v++) {
+        double AB[NM * NM], w[NM], scale = 0.0;
+        cost[v] = NAN;
+        for (k = 0; k < NM; k++)
+            for (i = 0; i < NM; i++) {
+                AB[k * NM + i] = A[k * NE + BRANCH_PORTS[v][i]];
+                scale = fmax(scale, fabs(AB[k * NM + i]));
+            }
+        if (fabs(determinant(NM, AB)) <= 1e-14 * pow(fmax(scale, 1e-300), NM)) continue;
+        memcpy(w, b, sizeof w);
+        if (solve(NM, AB, 1, w) != 0) continue;
+        for (i = 0; i < NM && w[i] >= 0.0; i++) {}
+        if (i < NM) continue;
+        cost[v] = 0.0;
+        for (i = 0; i < NM; i++) cost[v] += psi[BRANCH_PORTS[v][i]] * w[i];
+        if (!found || cost[v] < best) best = cost[v];
+        found = 1;
+    }
+    if (!found) return INFEASIBLE;
+    memset(tied, 0, sizeof tied);
+    for (v = 0; v < NB; v++)
+        if (cost[v] <= best + 1e-12 * fabs(best))
+            for (i = 0; i < NM; i++) tied[BRANCH_PORTS[v][i]] = 1;
+    for (i = 0; i < NE; i++) count += tied[i];
+    if (count > NM)                                /* equal cost on several ports: share evenly where w > 0 */
+        for (v = NB; v < NT && chosen < 0; v++) {
+            if (BRANCH_SIZE[v] != count) continue;
+            for (i = 0; i < count && tied[BRANCH_PORTS[v][i]]; i++) {}
+            if (i < count) continue;
+            STATE[v](par, gain, jet, out);
+            for (i = 0; i < count && out[i] > 0.0; i++) {}
+            if (i == count) chosen = v;
+        }
+    for (v = 0; v < NB && chosen < 0; v++)         /* the first vertex of least cost */
+        if (cost[v] == best) {
+            chosen = v;
+            STATE[v](par, gain, jet, out);
+        }
+    memcpy(ref, out + BRANCH_SIZE[chosen], sizeof(double) * NR);
+#if TRACKING
+    if (dref != NULL) DSTATE[chosen](par, gain, jet, dref);
+#else
+    (void)dref;
+#endif
+    return NULL;
+}
+"""
+
+_CONTROLLER_LAW = r"""
+/* u (EMC_N_OUTPUTS = n_e) at the inputs and, if du is not NULL, du/d inputs (n_e x EMC_N_CONTROLLER_INPUTS,
+   row-major: the law's Jacobian, through the reference's by the chain rule); NULL, or why the reference is not
+   feasible (Definition 1) */
+const char *emc_ctrl_law(const double *par, const double *gain, const double *in, double *u, double *du)
+{
+    double jet[NJ], ref[NR], dref[NR * NJ], J[NE * (NS + NR)];
+    const char *why;
+    int i, j, k;
+#if TRACKING
+    memcpy(jet, in + NS, sizeof jet);
+#else
+    emc_ctrl_jet(par, gain, in, jet);
+#endif
+    why = reference(par, gain, jet, ref, (TRACKING && du != NULL) ? dref : NULL);
+    if (why != NULL) return why;
+    emc_ctrl_u(par, gain, in, ref, u);
+    if (du == NULL) return NULL;
+    emc_ctrl_du(par, gain, in, ref, J);
+    for (i = 0; i < NE; i++) {
+        for (k = 0; k < NS; k++) du[i * NI + k] = J[i * (NS + NR) + k];
+        for (j = 0; j < NI - NS; j++) {
+            double s = 0.0;
+            for (k = 0; k < NR; k++) s += J[i * (NS + NR) + NS + k] * dref[k * NJ + j];
+            du[i * NI + NS + j] = s;
+        }
+    }
+    return NULL;
+}
+"""
 
 
 # ---- the design's conditions (components.certificates.design_checks) --------------------------------------
@@ -317,17 +900,23 @@ def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequ
         raise ValueError(f"{desc.source}: {design}'s design matrices exceed emc_controller.c's buffer")
     table = []
     for check, test, at_reference, numbers, note in rows:
-        entries = ", ".join(f"{{{_c_string(label)}, {offsets[f][0]}, {offsets[f][1]}}}" for label, f in numbers)
-        table.append(f"    {{{_c_string(check)}, {test}, {at_reference}, {len(numbers)}, {{{entries}}}, {_c_string(note)}}},")
+        entries = ", ".join(f"{{{c_string(label)}, {offsets[f][0]}, {offsets[f][1]}}}" for label, f in numbers)
+        table.append(f"    {{{c_string(check)}, {test}, {at_reference}, {len(numbers)}, {{{entries}}}, {c_string(note)}}},")
     controller = re.sub(r"(\d)$", r" \1", design)
     return "\n".join([
         w.function("ctrl_design", values, f"{controller}'s design matrices at the target (components.laws.design_matrices)"),
         "",
-        f"const char *const EMC_DESIGN_NAME = {_c_string(controller)};",
+        f"const char *const EMC_DESIGN_NAME = {c_string(controller)};",
         f"const int EMC_N_DESIGN_CHECKS = {len(rows)};",
         "const emc_design_check EMC_DESIGN_CHECKS[] = {   /* components.certificates.design_checks */",
         *table, "};"])
 
 
-def _c_string(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+SAFE_IN_C_STRING = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 _.,:;<>=+-*/()[]")
+
+
+def c_string(text: str) -> str:
+    """A C string literal of `text` (names and notes, some from a description file: data, never code): every
+    byte outside a plain set is a three-digit octal escape, so no quote, backslash, newline or trigraph ("??/" is
+    a backslash under -std=c99) can end the literal early."""
+    return '"' + "".join(chr(b) if chr(b) in SAFE_IN_C_STRING else f"\\{b:03o}" for b in text.encode("utf-8")) + '"'

@@ -324,3 +324,196 @@ def _design_gain(desc: Description, gain_names: tuple[str, ...], name: str) -> s
     if name == "W":
         return sympy.Integer(1)
     raise ValueError(f"{desc.source}: no gain {name}")
+
+
+# ---- Definition 1 for any plant: the pieces the native controllers solve (components.c_codegen) ---------------
+def jet_vector(desc: Description) -> tuple[sympy.Symbol, ...]:
+    """The reference jet (q*, q*', q*'', q*''') of any plant as 4 n_m symbols in the order of a tracking
+    controller's inputs (components.device.Device.jet_names: every q_i*, then every q_i*', ...); for n_m = 1
+    these are `jet_symbols`."""
+    return tuple(sympy.Symbol(f"{s.name}_star{suffix}", real=True)
+                 for suffix in ("", "_dot", "_ddot", "_dddot") for s in desc.q_symbols)
+
+
+def force_jet(desc: Description) -> tuple[sympy.Matrix, sympy.Matrix, sympy.Matrix]:
+    """(p*, F*, F*') along the jet of `jet_vector`: the p-row of eq. (open-loop elecmech) on the reference,
+        p* = M(q*) q*',   F* = M q*'' + M' q*' + R_m q*' + grad V(q*) + 1/2 p*^T dM^-1/dq p*  = -grad_q H_e(q*, x_e*),
+    and F*' = dF*/dt (Definition 1; components.described.DescribedPlant.force_jet states the same)."""
+    m = desc.n_m
+    jet = jet_vector(desc)
+    qs, qd, qdd, qddd = (jet[i * m:(i + 1) * m] for i in range(4))
+    t = sympy.Symbol("t_path", real=True)
+    path = {q: sympy.Function(f"path_{k}")(t) for k, q in enumerate(desc.q_symbols)}
+    q_t = sympy.Matrix([path[q] for q in desc.q_symbols])
+    M_t = desc.M.xreplace(path)
+    q_dot = q_t.diff(t)
+    p_t = M_t * q_dot
+    F = (M_t * q_t.diff(t, 2) + M_t.diff(t) * q_dot + desc.R_m * q_dot
+         + sympy.Matrix([desc.V.diff(q) for q in desc.q_symbols]).xreplace(path))
+    if not desc.constant_mass:
+        M_inv = desc.M.inv()
+        F = F + sympy.Matrix([(p_t.T * M_inv.diff(q).xreplace(path) * p_t)[0, 0] / 2 for q in desc.q_symbols])
+    F_dot = F.diff(t)
+    back = [(path[desc.q_symbols[k]].diff(t, order), sym[k]) for order, sym in ((3, qddd), (2, qdd), (1, qd))
+            for k in range(m)] + [(path[desc.q_symbols[k]], qs[k]) for k in range(m)]
+
+    def unpath(expr: sympy.Expr) -> sympy.Expr:
+        for old, new in back:
+            expr = expr.subs(old, new)
+        return expr
+    return (p_t.applyfunc(unpath), F.applyfunc(unpath), F_dot.applyfunc(unpath))
+
+
+@dataclass(frozen=True)
+class NewtonReference:
+    """Definition 1 for n_e = n_m (components.described.DescribedPlant.feasible_state): x_e* solves
+        R_1(x_e*) = -1/2 x_e*^T dPsi/dq_k(q*) x_e* - F*_k = 0                     (k = 1..n_m)
+    by Newton's method, and x_e*' solves the time derivative of R_1,
+        R_2 = A x_e*' + F*' + 1/2 x_e*^T (dPsi_k/dt) x_e* = 0,   A_ki = (dPsi/dq_k(q*) x_e*)_i;
+    the reference's derivatives follow from the implicit function theorem: dx_e*/dj = A^-1 dR_1/dj,
+    dx_e*'/dj = -A^-1 (dR_2/dj + dR_2/dx_e* dx_e*/dj). All in the symbols jet (jet_vector), x (x_e*), x_dot."""
+
+    jet: tuple[sympy.Symbol, ...]
+    x: tuple[sympy.Symbol, ...]
+    x_dot: tuple[sympy.Symbol, ...]
+    margin: sympy.Expr                    # the domain margin at q* (oo: no boundary)
+    p: sympy.Matrix                       # p* = M(q*) q*'
+    F: sympy.Matrix                       # F*
+    dPsi: tuple[sympy.Matrix, ...]        # dPsi/dq_k at q*
+    A: sympy.Matrix                       # A_ki = (dPsi_k x)_i
+    b: sympy.Matrix                       # -(F*' + 1/2 x^T dPsi_k/dt x): A x_dot = b
+    R_1: sympy.Matrix
+    R_2: sympy.Matrix
+
+
+def newton_reference(desc: Description) -> NewtonReference:
+    """The NewtonReference of a plant with n_e = n_m (any M(q))."""
+    if desc.n_e != desc.n_m:
+        raise ValueError(f"{desc.source}: Newton's feasible reference needs n_e = n_m (here {desc.n_m}, {desc.n_e})")
+    E = plant_expressions(desc)
+    jet = jet_vector(desc)
+    m = desc.n_m
+    star = dict(zip(desc.q_symbols, jet[:m]))
+    x = sympy.Matrix([sympy.Symbol(f"{s.name}_star", real=True) for s in desc.x_e_symbols])
+    x_dot = sympy.Matrix([sympy.Symbol(f"{s.name}_star_dot", real=True) for s in desc.x_e_symbols])
+    p, F, F_dot = force_jet(desc)
+    dPsi = tuple(D.xreplace(star) for D in E.dPsi)
+    dPsi_dt = [sum((E.d2Psi[k][j].xreplace(star) * jet[m + j] for j in range(m)), sympy.zeros(m, m))
+               for k in range(m)]
+    A = sympy.Matrix(m, m, lambda k, i: (dPsi[k] * x)[i])
+    quad = sympy.Matrix([(x.T * dPsi_dt[k] * x)[0, 0] / 2 for k in range(m)])
+    R_1 = sympy.Matrix([-(x.T * dPsi[k] * x)[0, 0] / 2 - F[k] for k in range(m)])
+    margin = sympy.oo if E.domain_margin is None else E.domain_margin.xreplace(star)
+    return NewtonReference(jet, tuple(x), tuple(x_dot), margin, p, F, dPsi, A, -(F_dot + quad), R_1,
+                           A * x_dot + F_dot + quad)
+
+
+@dataclass(frozen=True)
+class ClosedReference:
+    """Definition 1 in closed form in the jet (jet_vector): the feasible state (q*, p*, x_e*, x_e*') and what
+    must be positive for it to exist: the domain margin at q* and `conditions` (n_m = n_e = 1: 2 F*/g; a bias
+    operating point: the solved w = x_e*^2); F* (all zero at rest: the equilibrium x_e = 0 of
+    components.ph_plant.EMPlant.equilibrium)."""
+
+    jet: tuple[sympy.Symbol, ...]
+    margin: sympy.Expr
+    F: sympy.Matrix
+    conditions: tuple[sympy.Expr, ...]
+    state: tuple[sympy.Expr, ...]         # (q*, p*, x_e*, x_e*'): 2 n_m + 2 n_e entries
+
+
+def closed_reference(desc: Description) -> ClosedReference:
+    """The ClosedReference of a plant with n_m = n_e = 1 and constant M (`feasible_reference`) or with n_e > n_m
+    and a bias operating point (components.operating_point: n_e - n_m coordinates given, the force balance
+    A(q*) w = -F*, A_ki = (dPsi/dq_k)_ii / 2, w = x_e*^2, fixes the rest; x_e*' from A w' = -F*' - A' w)."""
+    E = plant_expressions(desc)
+    jet = jet_vector(desc)
+    m, e = desc.n_m, desc.n_e
+    star = dict(zip(desc.q_symbols, jet[:m]))
+    p, F, F_dot = force_jet(desc)
+    margin = sympy.oo if E.domain_margin is None else E.domain_margin.xreplace(star)
+    if m == 1 and e == 1 and desc.constant_mass:
+        _, subs = feasible_reference(desc)
+        q_s, p_s, x_s, xd_s = _reference_symbols(desc)
+        ratio = (subs[x_s[0]] / desc.x_e_sign) ** 2                           # 2 F* / g
+        state = (jet[0], subs[p_s[0]], subs[x_s[0]], subs[xd_s[0]])
+        return ClosedReference(jet, margin, F, (ratio,), state)
+    rule = desc.operating_point
+    if e <= m or rule is None or rule.kind != "bias":
+        kind = "least_energy (the default)" if rule is None else rule.kind
+        raise ValueError(f"{desc.source}: a closed-form feasible reference needs n_m = n_e = 1 with constant M, or "
+                         f"n_e > n_m with a bias operating point (here n_m = {m}, n_e = {e}, rule {kind})")
+    A = sympy.Matrix(m, e, lambda k, i: E.dPsi[k][i, i].xreplace(star) / 2)
+    A_dot = sympy.Matrix(m, e, lambda k, i: sum(E.d2Psi[k][j][i, i].xreplace(star) * jet[m + j] for j in range(m)) / 2)
+    held = {i for i, _ in rule.values} | {i for i, _, _ in rule.ratios}
+    free = [i for i in range(e) if i not in held]
+    M_red = A[:, free]
+    for i, j, r in rule.ratios:
+        M_red[:, free.index(j)] += r * r * A[:, i]
+    fixed = sum((A[:, i] * v * v for i, v in rule.values), sympy.zeros(m, 1))
+    M_inv = M_red.inv()
+    w_free = M_inv * (-F - fixed)
+    w = [sympy.Integer(0)] * e
+    x = [sympy.Integer(0)] * e
+    for k, i in enumerate(free):
+        w[i], x[i] = w_free[k], desc.x_e_sign * sympy.sqrt(w_free[k])
+    for i, v in rule.values:
+        w[i], x[i] = sympy.Float(v * v), sympy.Float(v)
+    for i, j, r in rule.ratios:
+        w[i], x[i] = r * r * w[j], r * x[j]
+    w_dot_free = M_inv * (-F_dot - A_dot * sympy.Matrix(w))
+    x_dot = [sympy.Integer(0)] * e
+    for k, i in enumerate(free):
+        x_dot[i] = w_dot_free[k] / (2 * x[i])
+    for i, j, r in rule.ratios:
+        x_dot[i] = r * x_dot[j]
+    return ClosedReference(jet, margin, F, tuple(w_free), (*jet[:m], *p, *x, *x_dot))
+
+
+def least_reference_branch(desc: Description, ports: tuple[int, ...]) -> tuple[tuple[sympy.Expr, ...], tuple[sympy.Expr, ...]]:
+    """One branch of a least-energy or least-input operating point (components.operating_point.solve and rate) in
+    the jet of `jet_vector`: (w on `ports`, the feasible state (q*, p*, x_e*, x_e*')). n_m ports: a vertex of the
+    linear program, w_B = A_B^-1 b; more ports: the even share of tied ports, w_T = A_T^T (A_T A_T^T)^-1 b; b = -F*,
+    A_ki = (dPsi/dq_k)_ii / 2 at q*; x_e* = x_e_sign sqrt(w) on the ports, 0 elsewhere; x_e*' from A w' = -F*' - A' w
+    (the even share differentiated: w_T' = A_T'^T y + A_T^T y', y = G^-1 b, y' = G^-1 (b' - (A_T' A_T^T + A_T A_T'^T) y),
+    G = A_T A_T^T). Which branch holds at a jet is chosen numerically (components.c_codegen)."""
+    E = plant_expressions(desc)
+    jet = jet_vector(desc)
+    m, e = desc.n_m, desc.n_e
+    star = dict(zip(desc.q_symbols, jet[:m]))
+    p, F, F_dot = force_jet(desc)
+    A = sympy.Matrix(m, e, lambda k, i: E.dPsi[k][i, i].xreplace(star) / 2)
+    A_dot = sympy.Matrix(m, e, lambda k, i: sum(E.d2Psi[k][j][i, i].xreplace(star) * jet[m + j] for j in range(m)) / 2)
+    A_T, A_T_dot = A[:, list(ports)], A_dot[:, list(ports)]
+    if len(ports) == m:
+        A_inv = A_T.inv()
+        w_T = A_inv * (-F)
+        w_full = sympy.zeros(e, 1)
+        for k, i in enumerate(ports):
+            w_full[i] = w_T[k]
+        w_dot = A_inv * (-F_dot - A_dot * w_full)
+    else:
+        G_inv = (A_T * A_T.T).inv()
+        y = G_inv * (-F)
+        y_dot = G_inv * (-F_dot - (A_T_dot * A_T.T + A_T * A_T_dot.T) * y)
+        w_T = A_T.T * y
+        w_dot = A_T_dot.T * y + A_T.T * y_dot
+    x = [sympy.Integer(0)] * e
+    x_dot = [sympy.Integer(0)] * e
+    for k, i in enumerate(ports):
+        x[i] = desc.x_e_sign * sympy.sqrt(w_T[k])
+        x_dot[i] = w_dot[k] / (2 * x[i])
+    return tuple(w_T), (*jet[:m], *p, *x, *x_dot)
+
+
+def operating_point_costs(desc: Description) -> tuple[sympy.Expr, ...]:
+    """The cost per unit of w_i = x_e_i^2 a least rule minimises (components.operating_point.weights), at q*:
+    Psi_ii (least_energy) or ((R_e - J_e)_ii Psi_ii / G_e_ii)^2 (least_input)."""
+    E = plant_expressions(desc)
+    star = dict(zip(desc.q_symbols, jet_vector(desc)[:desc.n_m]))
+    psi = [E.Psi[i, i].xreplace(star) for i in range(desc.n_e)]
+    rule = desc.operating_point
+    if rule is not None and rule.kind == "least_input":
+        RJ = desc.R_e - desc.J_e
+        return tuple((RJ[i, i] * psi[i] / desc.G_e[i, i]) ** 2 for i in range(desc.n_e))
+    return tuple(psi)

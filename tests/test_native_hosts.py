@@ -207,8 +207,9 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 @pytest.fixture(scope="module")
 def device_fmus(tmp_path_factory) -> dict[str, Path]:
-    """`emcosim plant build --native` of a device with designs (Solenoid: plant, Proposition1, Theorem2) and of
-    one with n_m = n_e = 2 (LevitatedBar: the plant alone)."""
+    """`emcosim plant build --native` of a device with n_m = n_e = 1 (Solenoid: plant, Proposition1, Theorem2) and
+    of one with n_m = n_e = 2 (LevitatedBar: plant, Proposition2, Theorem3 with Newton in C), each with the
+    Reference."""
     from emcosim.devices.build import build_native_fmus_of
     out = tmp_path_factory.mktemp("device_fmus")
     fmus: dict[str, Path] = {}
@@ -223,8 +224,11 @@ def test_example_device_fmus_in_c_hosts(hosts, device_fmus, tmp_path):
     and by its own RODAS4 as Co-Simulation (c_calls.c), agree within RK4's Richardson estimate plus 1e-7 of
     the state (doStep's rtol is 1e-8); a controller's u equals itself through both interfaces (c_host.c,
     c_calls.c `instme`), bit for bit, at the inputs c_host.c ends with."""
-    assert sorted(device_fmus) == ["LevitatedBar", "Solenoid", "Solenoid_Proposition1", "Solenoid_Theorem2"]
+    assert sorted(device_fmus) == ["LevitatedBar", "LevitatedBar_Proposition2", "LevitatedBar_Theorem3", "Reference",
+                                   "Solenoid", "Solenoid_Proposition1", "Solenoid_Theorem2"]
     for name, fmu in device_fmus.items():
+        if name == "Reference":                          # the paper's Reference: test_native_reference_in_c_host_*
+            continue
         md = read_model_description(str(fmu))
         vr = {v.name: v.valueReference for v in md.modelVariables}
         inputs = {v.name: float(v.start) for v in md.modelVariables if v.causality == "input"}
@@ -252,9 +256,10 @@ def test_example_device_fmus_in_c_hosts(hosts, device_fmus, tmp_path):
             estimate = np.abs(me[1] - me[0]) / 15
             assert np.all(np.abs(me[0] - cs) <= 3 * estimate + 1e-7 * np.maximum(np.abs(cs), nominal)), (name, me[0], cs)
         else:                                                                # a controller
-            run, values = run_in_c_host(hosts["cs"], fmu, tmp_path / "host", inputs, ["u"], 1e-3, N)
+            u = next(v.name for v in md.modelVariables if v.causality == "output")          # u, or u_1 of several
+            run, values = run_in_c_host(hosts["cs"], fmu, tmp_path / "host", inputs, [u], 1e-3, N)
             _clean(run)
             x = last_inputs(inputs, N)
-            calls = [w for k, v in zip(inputs, x) for w in ("setr", str(vr[k]), repr(v))] + ["getr", str(vr["u"])]
+            calls = [w for k, v in zip(inputs, x) for w in ("setr", str(vr[k]), repr(v))] + ["getr", str(vr[u])]
             lines = _me_calls(hosts, fmu, tmp_path / "me", calls)
             assert float(lines[-3][2]) == values[2], (name, lines, values)

@@ -112,10 +112,11 @@ def build_fmus_of(description: str | Path, out: Path, progress: Callable[[str], 
 
 def build_native_fmus_of(description: str | Path, out: Path,
                          progress: Callable[[str], None] | None = None) -> dict[str, Path]:
-    """`plant build --native`: the native (C, self-contained) plant FMU of a description file and, for a
-    plant of one degree of freedom, a native controller FMU per design that applies (fmus.native_build);
-    the Reference is not generated natively for a device yet. NativeBuildError for a missing compiler."""
-    from fmus.native_build import build_native_description_fmus
+    """`plant build --native`: the native (C, self-contained) plant FMU of a description file, a native controller
+    FMU per design that applies (any n_m, n_e: fmus.native_build) and the native Reference FMU, into `out`.
+    NativeBuildError for a missing compiler or a design whose feasible reference has no native form (n_e < n_m,
+    coupled coils with n_e > n_m: the pythonfmu controller has none either); the FMUs written before it stay."""
+    from fmus.native_build import build_native_description_fmus, build_native_reference
 
     from . import registry
 
@@ -125,13 +126,10 @@ def build_native_fmus_of(description: str | Path, out: Path,
     check_device_names(device, designs, out)
     for line in report.not_applicable():                # "<design>: <why>"
         say(f"not built   {device.name}_{line}")
-    one_dof = desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass
-    paths = build_native_description_fmus(desc.source, designs if one_dof else [], out)
+    paths = build_native_description_fmus(desc.source, designs, out)
+    paths["Reference"] = build_native_reference(out)
     for path in paths.values():
         say(f"built       {path}")
-    if not one_dof:
-        for design in designs:
-            say(f"not built   {desc.name}_{design}: native controllers need n_m = n_e = 1 (docs/native-fmus.md)")
     return paths
 
 

@@ -1,6 +1,7 @@
 /* emcosim's native controller FMUs: the controller model kind of the FMI 2.0 framework (emc_fmi2.h, emc_fmi2.c).
  *
- * The model (emc_controller.h) supplies the law u(inputs) of components.laws and its Jacobian; this file
+ * The model (emc_controller.h) supplies the law u(inputs) of components.laws (any n_m, n_e) and its Jacobian, with
+ * the feasible reference of Definition 1 and the design's checks; this file
  * supplies what the framework asks of a model: the data (parameters, gains, strict, the inputs and the input
  * rates the master set), the roles of the variables, get/set, the design's checks at
  * fmi2ExitInitializationMode, du/dt (fmi2GetRealOutputDerivatives, order 1, from the input derivatives the
@@ -8,19 +9,17 @@
  * derivatives. No continuous states. u depends on the inputs only (direct feedthrough): it is computed when
  * read; doStep only checks that it can be computed (fmi2Discard otherwise).
  *
- * A u that cannot be computed (a reference that is not feasible, Definition 1: q* outside the domain or
- * 2 F* / g <= 0; a u that is not finite) is answered with fmi2Error (fmi2Discard in doStep) and one log line,
- * never with NaN. The design's conditions (components.certificates.design_checks: the matrices of
- * components.laws.design_matrices at the target, from controller.c's emc_ctrl_design) are checked at
- * fmi2ExitInitializationMode as the twin checks them (fmus/controller.py): a violated one is logged as a warning
- * with strict = 0 and refuses initialization with strict = 1, with the twin's words and numbers.
+ * A u that cannot be computed (a reference that is not feasible, Definition 1: q* outside the domain, no real
+ * x_e*, Newton's method failing; a u that is not finite) is answered with fmi2Error (fmi2Discard in doStep) and one
+ * log line, never with NaN. Where controller.c has them (EMC_DESIGN_CHECKED: n_m = n_e = 1 with constant M), the
+ * design's conditions (components.certificates.design_checks: the matrices of components.laws.design_matrices at
+ * the target, from controller.c's emc_ctrl_design) are checked at fmi2ExitInitializationMode as the twin checks
+ * them (fmus/controller.py): a violated one is logged as a warning with strict = 0 and refuses initialization with
+ * strict = 1, with the twin's words and numbers; elsewhere strict = 1 is refused.
  *
  * Sizes come from emc_config.h: EMC_N_CONTROLLER_INPUTS inputs and EMC_N_OUTPUTS outputs (u, n_e of them), the law's
- * Jacobian row-major (outputs x inputs). Two forms of controller.c are served: the law in one function,
- * emc_ctrl_law (u, du/d inputs, or why the reference is not feasible) with emc_ctrl_check (the design's
- * construction checks), for any n_m, n_e (the config defines EMC_N_OUTPUTS); or, for n_m = n_e = 1, the four
- * functions emc_ctrl_u, emc_ctrl_du, emc_ctrl_reference, emc_ctrl_conditions with EMC_STRICT_PH and EMC_ASK_K_C.
- * (The four-function form goes once every controller.c is generated in the one-function form.)
+ * Jacobian row-major (outputs x inputs); from controller.c emc_ctrl_law (u, du/d inputs, or why the reference is not
+ * feasible) and emc_ctrl_check (the design's construction checks).
  */
 #include <math.h>
 #include <stdio.h>
@@ -31,11 +30,7 @@
 #include "emc_design.h"
 
 #define EMC_NI EMC_N_CONTROLLER_INPUTS
-#ifdef EMC_N_OUTPUTS
-#define EMC_NO EMC_N_OUTPUTS                /* the one-function law: emc_ctrl_law, emc_ctrl_check */
-#else
-#define EMC_NO 1                            /* the four-function law of n_m = n_e = 1 */
-#endif
+#define EMC_NO EMC_N_OUTPUTS
 
 /* the controller's data: everything that changes after instantiation (an FMU state is a copy) */
 typedef struct {
@@ -65,7 +60,6 @@ static fmi2Status check_values(emc_instance *c, const char *function, const emc_
     return fmi2OK;
 }
 
-#ifdef EMC_N_OUTPUTS
 /* the conditions, the controller's construction checks (emc_ctrl_check: components.closed_loop); for
    regulation, the constant reference's feasibility */
 static fmi2Status check_design(emc_instance *c, const char *function, const emc_data *d)
@@ -85,43 +79,6 @@ static const char *law(const emc_data *d, double *u, double *du)
 {
     return emc_ctrl_law(d->par, d->gain, d->in, u, du);
 }
-#else
-/* the conditions and the controller's construction checks (components.closed_loop: R_e_bar > 0, k_c > 0, eq.
-   pHcondition); for regulation, the constant reference's feasibility */
-static fmi2Status check_design(emc_instance *c, const char *function, const emc_data *d)
-{
-    double cond[4], ref[2];
-    if (check_values(c, function, d) != fmi2OK) return fmi2Error;
-    emc_ctrl_conditions(d->par, d->gain, d->in, cond);
-    if (!(cond[0] > 0.0))
-        return emc_fail(c, fmi2Error, "%s: R_e_bar = %.6g violates R_e_bar = R_e + K_e > 0 (eq. barRe)", function, cond[0]);
-    if (EMC_ASK_K_C && !(cond[1] > 0.0))
-        return emc_fail(c, fmi2Error, "%s: k_c = %.6g violates k_c > 0", function, cond[1]);
-    if ((EMC_STRICT_PH == 1 && !(cond[2] > 0.0))
-        || (EMC_STRICT_PH == 0 && !(cond[2] >= -1e-12 * fmax(1.0, fabs(cond[3])))))
-        return emc_fail(c, fmi2Error, "%s: D_d violates the pH condition (eq. pHcondition) R_m - 1/4 D_d^T R_e_bar^-1 D_d "
-                        "%s 0 (it is %.3g)", function, EMC_STRICT_PH == 1 ? ">" : ">=", cond[2]);
-    if (!EMC_TRACKING) {
-        emc_ctrl_reference(d->par, d->gain, d->in, ref);
-        if (!(ref[0] > 0.0) || !(ref[1] > 0.0))
-            return emc_fail(c, fmi2Error, "%s: the set point q_d is not feasible (Definition 1: %s)", function,
-                            !(ref[0] > 0.0) ? "q_d is outside the domain" : "no real x_e_d balances the force");
-    }
-    return fmi2OK;
-}
-
-/* u and, if du is not NULL, du/d inputs at the inputs: NULL, or why the reference is not feasible */
-static const char *law(const emc_data *d, double *u, double *du)
-{
-    double ref[2];
-    emc_ctrl_reference(d->par, d->gain, d->in, ref);
-    if (!(ref[0] > 0.0) || !(ref[1] > 0.0))
-        return !(ref[0] > 0.0) ? "q* is outside the domain" : "no real x_e* balances the force the reference needs";
-    emc_ctrl_u(d->par, d->gain, d->in, u);
-    if (du != NULL) emc_ctrl_du(d->par, d->gain, d->in, du);
-    return NULL;
-}
-#endif
 
 /* u (and du/d inputs if du is not NULL) at the current inputs: fmi2OK, or `status` with one log line (never NaN) */
 static fmi2Status compute_u(emc_instance *c, const char *function, fmi2Status status, emc_data *d, double *u, double *du)

@@ -1,15 +1,16 @@
 /* emcosim's FMI 2.0 framework in C, controllers: what a controller model supplies (docs/native-fmus.md).
  *
  * emc_config.h (fmus/native_build.py): EMC_MODEL_IDENTIFIER, EMC_GUID, EMC_N_PARAMETERS (the plant's),
- * EMC_N_GAINS, EMC_N_CONTROLLER_INPUTS (q, p, x_e, then the jet when tracking), EMC_N_VARIABLES,
- * EMC_N_STATES (n = 2 n_m + n_e), EMC_DESIGN_CHECKED (1: controller.c has emc_ctrl_design),
- * EMC_TRACKING, EMC_STRICT_PH (1: eq. pHcondition strictly, Proposition 1; 0: weakly, Proposition 2;
- * -1: not asked, the theorems), EMC_ASK_K_C (1: k_c > 0 is a condition);
- * controller.c (components.c_codegen.controller_c_source): the law and its Jacobian; model.c: the plant's
- * parameter conditions (emc_check_parameters).
+ * EMC_N_GAINS, EMC_N_CONTROLLER_INPUTS (q, p, x_e, then the jet when tracking), EMC_N_OUTPUTS (u: n_e),
+ * EMC_N_VARIABLES, EMC_TRACKING, EMC_N_STATES (n = 2 n_m + n_e), EMC_DESIGN_CHECKED (1: controller.c has
+ * emc_ctrl_design);
+ * controller.c (components.c_codegen.controller_c_source): the law, its Jacobian, the feasible reference and the
+ * design's checks; model.c: the plant's parameter conditions (emc_check_parameters).
  */
 #ifndef EMC_CONTROLLER_H
 #define EMC_CONTROLLER_H
+
+#include <stddef.h>
 
 #include "emc_config.h"
 
@@ -37,11 +38,11 @@ extern const char *const EMC_GAIN_CONDITIONS[EMC_N_GAINS];
 extern const double EMC_INPUT_START[EMC_N_CONTROLLER_INPUTS];
 extern const char *const EMC_INPUT_NAMES[EMC_N_CONTROLLER_INPUTS];
 
-#define EMC_CTRL_FUNCTION(name) void emc_ctrl_##name(const double *par, const double *gain, const double *in, double *out)
-EMC_CTRL_FUNCTION(u);
-EMC_CTRL_FUNCTION(du);
-EMC_CTRL_FUNCTION(reference);
-EMC_CTRL_FUNCTION(conditions);
+/* u (EMC_N_OUTPUTS) at the inputs and, if du is not NULL, du/d inputs (EMC_N_OUTPUTS x EMC_N_CONTROLLER_INPUTS,
+   row-major); NULL, or why the reference is not feasible (Definition 1) */
+const char *emc_ctrl_law(const double *par, const double *gain, const double *in, double *u, double *du);
+/* the design's construction checks (R_e_bar > 0, the weight > 0, eq. pHcondition): 0, or 1 and why */
+int emc_ctrl_check(const double *par, const double *gain, char *why, size_t size);
 int emc_check_gains(const double *gain);
 
 /* the design's conditions (components.certificates.design_checks), checked at fmi2ExitInitializationMode: warned

@@ -357,3 +357,15 @@ def test_docs_list_certify_output_for_every_scenario(paper_certificates):
     for name in paper_certificates:
         assert f"$ emcosim certify {name}" in module.current_section()
     assert module.same_section(new, new.replace("holds", "fails", 1)) != []     # the check can fail
+
+
+def test_same_section_takes_residuals_at_rounding_as_equal_and_nothing_else():
+    """Residuals both below 1e-13 (zero to rounding) compare equal on a residual line; a residual of 1e-10 that
+    moved by 1e-3 of itself, or a number on another line at rounding level, does not."""
+    from emcosim.paper.certify import BEGIN, END, same_section
+
+    def doc(line: str) -> str:
+        return f"{BEGIN}\n{line}\n{END}"
+    assert same_section(doc("max rel. residual = 2.22775e-16"), doc("max rel. residual = 2.22545e-16")) == []
+    assert same_section(doc("max rel. residual = 1.000e-10"), doc("max rel. residual = 1.001e-10")) != []
+    assert same_section(doc("min eig K_e = 2.22775e-16"), doc("min eig K_e = 2.22545e-16")) != []

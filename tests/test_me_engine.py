@@ -580,3 +580,36 @@ def test_a_tolerance_run_whose_temporary_file_fills_the_disk_says_so(make, monke
                                               f"on device") as info:
         simulate(scenario, **ME, tolerance=1e-4, record=["d.x"])
     assert len(info.value.result) == 11
+
+
+def test_outputs_that_are_states_are_read_from_the_state_vector_and_only_those(make, toys, monkeypatch):
+    """An output whose value reference is a continuous state (<Derivatives>' derivative attribute points at
+    it: Dahlquist's x, the ball's h and v) is the state the solver set: a row takes it from the state vector
+    and calls only the FMUs its other values need (recording d.x and g.y of the loop: the Gain, not the
+    Dahlquist). Faulty's y equals its state x but is not declared as one: it is read by fmi2GetReal, so
+    its NaN from nan_at on ends the run at a row. The rows equal, bit for bit, those of the same run with
+    every output read by fmi2GetReal (state_references emptied)."""
+    from fmpy import read_model_description
+    declared = {kind: sorted(v for v, _ in ode.state_references(read_model_description(str(fmu))).items())
+                for kind, fmu in (("d", toys["Dahlquist"]), ("b", toys["BouncingBall"]),
+                                  ("f", toys["Faulty"]), ("g", toys["Gain"]))}
+    md = {kind: read_model_description(str(toys[name])) for kind, name in (("d", "Dahlquist"),
+                                                                               ("b", "BouncingBall"), ("f", "Faulty"))}
+    names = {k: sorted(v.name for v in md[k].modelVariables if v.valueReference in declared[k] and v.type == "Real")
+             for k in md}
+    assert names == {"d": ["x"], "b": ["h", "v"], "f": ["x"]} and declared["g"] == []      # Faulty's y: not a state
+
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=1.0, step_size=0.01)
+    with me.ModelExchangeSimulation(scenario) as sim:
+        plan = make_plan(scenario, sim.instances, sim.connections, ["d.x", "g.y"])
+        assert ode.System(scenario, sim.instances, sim.connections, plan).values.row_units == {"g"}
+    fast = simulate(scenario, **ME, solver="LSODA", rtol=1e-6, record=["d.x", "g.y", "f.x"])
+    monkeypatch.setattr(ode, "state_references", lambda md, offset=0: {})
+    slow = simulate(scenario, **ME, solver="LSODA", rtol=1e-6, record=["d.x", "g.y", "f.x"])
+    np.testing.assert_array_equal(np.array(fast.rows), np.array(slow.rows))
+    monkeypatch.undo()
+
+    faulty = make([("f", "Faulty")], [], {"f": {"nan_at": 0.305}})
+    with pytest.raises(SimulationError, match=r"f\.y = nan at t = ") as info:
+        simulate(faulty, **ME, record=["f.y"])
+    assert 0.305 <= event_time(info.value) < 0.32

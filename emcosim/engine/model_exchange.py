@@ -381,14 +381,18 @@ class _Grid:
     def __getitem__(self, k: int) -> float:
         return self.t0 + k * self.h if k < self.n else self.t_stop
 
-    def before(self, k: int, t_end: float, most: int) -> np.ndarray:
-        """The grid points from the k-th on that lie before t_end, at most `most` of them (the same doubles as
-        __getitem__'s: t0 + k h in IEEE arithmetic)."""
-        m = min(self.size - k, most, max(1, int((t_end - self[k]) / self.h) + 2))
-        times = self.t0 + np.arange(k, k + m) * self.h
-        if k + m == self.size:
-            times[-1] = self.t_stop
-        return times[:int(np.searchsorted(times, t_end))]
+    def before(self, k: int, t_end: float, most: int) -> list[float]:
+        """The grid points from the k-th on that lie before t_end, at most `most` of them (__getitem__'s
+        doubles; a step holds a few: Python's floats cost less than numpy's arrays here)."""
+        times: list[float] = []
+        end = min(self.size, k + most)
+        while k < end:
+            t = self.t0 + k * self.h if k < self.n else self.t_stop
+            if not t < t_end:
+                break
+            times.append(t)
+            k += 1
+        return times
 
 
 def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
@@ -534,10 +538,7 @@ def _rows(system: System, result: Result, dense_output: Callable[[], Any], grid:
         # (scipy's cost is per call: 3-7 us, as much as the FMUs' calls of a row)
         times = grid.before(k, t_end, CHUNK)
         dense = dense_output() if dense is None else dense
-        states = np.ascontiguousarray(np.asarray(dense(times)).T)
-        for tk, x in zip(times.tolist(), states):
-            system.set_point(tk, x, record=True)
-            result.append(tk, system.row())
+        system.rows(times, dense(np.array(times)), result.append)
         k += len(times)
     if k < grid.size and grid[k] == t_end and not before_event:
         system.set_point(t_end, x_end, record=True)

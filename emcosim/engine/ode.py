@@ -91,6 +91,7 @@ class _Unit:
     x: Any = None                                   # ctypes arrays of its states, derivatives, indicators
     dx: Any = None
     z: Any = None
+    states: dict = field(default_factory=dict)      # value reference of a continuous state -> its index in x
 
 
 class System:
@@ -110,6 +111,7 @@ class System:
         for inst in instances.values():
             md = inst.model_description
             unit = _Unit(inst, offset, len(md.derivatives), int(md.numberOfEventIndicators or 0))
+            unit.states = state_references(md, offset)
             for name in ("fmi2SetTime", "fmi2SetContinuousStates", "fmi2GetDerivatives", "fmi2GetEventIndicators",
                          "fmi2GetContinuousStates", "fmi2GetNominalsOfContinuousStates", "fmi2EnterEventMode",
                          "fmi2NewDiscreteStates", "fmi2EnterContinuousTimeMode", "fmi2CompletedIntegratorStep"):
@@ -135,6 +137,11 @@ class System:
         if buffered is None:
             buffered = all(t.real and t.orders is None for t in transfers(plan))
         self.values: _Buffers | _Transfers = _Buffers(self) if buffered else _Transfers(self)
+        # a row's calls (_Buffers.row_units): the time and the states of only the FMUs the recorded values need
+        row_units = getattr(self.values, "row_units", None)
+        self._row_calls = None if row_units is None or row_units == {u.inst.name for u in self.units} else (
+            [c for c in self._set_time if c[2].inst.name in row_units],
+            [c for c in self._set_states if c[2].inst.name in row_units])
         self.jacobian_plan = _JacobianPlan(self) if all(
             u.inst.model_description.modelExchange.providesDirectionalDerivative for u in knowing) else None
 
@@ -211,6 +218,9 @@ class System:
                 self.values.resolve(t, record=True, connected=False)
                 self._recorded = True
             return
+        if record and self._row_calls is not None:
+            self._row_point(t, xi)
+            return
         self._point = None
         if t != self.time:
             self.time = t
@@ -224,6 +234,48 @@ class System:
                 raise self.failure(unit.inst, "fmi2SetContinuousStates")
         if self.values.resolve(t, record):
             self._point, self._recorded = point, record
+
+    def _row_point(self, t: float, xi: np.ndarray) -> None:
+        """A row's point where some FMUs are not needed (_Buffers: a recorded output that is a continuous state
+        is the solver's value, an FMU nobody reads is not called): fmi2SetTime and fmi2SetContinuousStates only
+        on the FMUs the row calls, then the row's values. The FMUs are then at different points: the next
+        evaluation sets every FMU again."""
+        self._point, self.time = None, None
+        set_time, set_states = self._row_calls
+        self._t.value = t
+        for fn, args, unit in set_time:
+            if fn(*args) > 1:
+                raise self.failure(unit.inst, "fmi2SetTime")
+        np.multiply(xi, self.scale, out=self._x)
+        for fn, args, unit in set_states:
+            if fn(*args) > 1:
+                raise self.failure(unit.inst, "fmi2SetContinuousStates")
+        self.values.resolve(t, record=True)
+
+    def rows(self, times: list[float], xis: np.ndarray, append: Callable[[float, list], None]) -> None:
+        """The rows at `times` (a step's grid points) of the scaled states xis[:, k] (the dense output's):
+        append(t, the recorded values) for each. Where a row needs only some FMUs (_row_point), the states of
+        all rows are unscaled in one product and each row makes only its calls."""
+        if self._row_calls is None:
+            for t, xi in zip(times, np.ascontiguousarray(xis.T)):
+                self.set_point(t, xi, record=True)
+                append(t, self.values.row())
+            return
+        self._point, self.time = None, None
+        set_time, set_states = self._row_calls
+        x, values = self._x, self.values
+        for t, state in zip(times, np.multiply(xis.T, self.scale, order="C")):
+            stopping.check()
+            self._t.value = t
+            for fn, args, unit in set_time:
+                if fn(*args) > 1:
+                    raise self.failure(unit.inst, "fmi2SetTime")
+            x[:] = state
+            for fn, args, unit in set_states:
+                if fn(*args) > 1:
+                    raise self.failure(unit.inst, "fmi2SetContinuousStates")
+            values.resolve(t, True)
+            append(t, values.row())
 
     def resolve(self, t: float, record: bool = False) -> None:
         """The connected values at the current point (outside the evaluations: initialization, events)."""
@@ -377,6 +429,17 @@ class System:
         return wanted
 
 
+def state_references(model_description, offset: int = 0) -> dict[int, int]:
+    """{value reference: index in x} of an FMU's continuous states, x's part from `offset` on: the Real
+    variables that the `derivative` attributes of its <ModelStructure><Derivatives> point at (FMI 2.0,
+    section 2.2.8: the order of <Derivatives> is the order of fmi2GetContinuousStates; fmpy resolves the
+    attribute to the variable). A variable with such a value reference IS the state (an alias has its
+    value), so its value at a point is the state set there; any other variable, even one whose equation
+    copies a state, is read by fmi2GetReal."""
+    return {d.variable.derivative.valueReference: offset + j for j, d in enumerate(model_description.derivatives)
+            if d.variable.derivative is not None}
+
+
 def needs_completed_step(model_description) -> bool:
     """Whether the FMU asks for fmi2CompletedIntegratorStep after every step (completedIntegratorStepNotNeeded
     false or absent). Works around fmpy (0.3.32): for FMI 2.0 its read_model_description stores that attribute
@@ -433,24 +496,59 @@ class _Buffers:
         self.slots = np.zeros(max(1, n_slots(plan)))
         self.columns = np.array(plan.column_slots, dtype=np.intp)
         shown = set(plan.column_slots)
-        groups: list[tuple] = []     # (transfer, slots it writes, slots it reads, its steps)
+        self.units = {u.inst.name: u for u in system.units}
+        groups: list[tuple] = []     # (transfer, slots it writes, slots it reads, its steps, it calls its FMU)
         for gets, sets in plan.stages:
-            groups += [(t, t.slots, [], self._get(t)) for t, _ in gets]
-            groups += [(t, t.slots, [s for s, _, _ in sources], self._set(t, sources, shown)) for t, sources in sets]
-        self.connected = [step for *_, steps in groups for step in steps]
-        self.recorded = [step for t, _ in plan.record for step in self._get(t)]
-        # the steps a row needs, found backwards from the recorded slots
-        needed, read = set(plan.column_slots), {t.inst.name for t, _ in plan.record}
+            for t, _ in gets:
+                states = self._from_states(t)
+                groups.append((t, t.slots, [], states or self._get(t), not states))
+            groups += [(t, t.slots, [s for s, _, _ in sources], self._set(t, sources, shown), True)
+                       for t, sources in sets]
+        self.connected = [step for *_, steps, _ in groups for step in steps]
+        record = [(t, self._from_states(t)) for t, _ in plan.record]
+        self.recorded = [step for t, states in record for step in states or self._get(t)]
+        # the steps a row needs, found backwards from the recorded slots, and the FMUs they call
+        needed, read = set(plan.column_slots), {t.inst.name for t, states in record if not states}
         kept = []
-        for transfer, writes, reads, steps in reversed(groups):
+        self.row_units = set(read)
+        for transfer, writes, reads, steps, calls in reversed(groups):
             if transfer.getter and needed.intersection(writes) or not transfer.getter and (
                     transfer.inst.name in read or needed.intersection(writes)):
                 kept.append(steps)
                 needed.update(reads)
-                if transfer.getter:
-                    read.add(transfer.inst.name)
+                if calls:
+                    self.row_units.add(transfer.inst.name)
+                    if transfer.getter:
+                        read.add(transfer.inst.name)
         self.row_steps = [step for steps in reversed(kept) for step in steps]
         self.complete_rows = len(self.row_steps) == len(self.connected)
+        self.row_sequence = self.row_steps + self.recorded
+
+    def _from_states(self, transfer: Transfer) -> list[tuple]:
+        """The steps of a get whose every variable is a continuous state of its FMU (state_references): its
+        values are the point's states (the system's _x, the very doubles fmi2SetContinuousStates gets), copied
+        into the buffer without calling the FMU; [] for any other transfer (read by its call)."""
+        states = self.units[transfer.inst.name].states
+        vrs = list(transfer.vr)
+        if not (transfer.getter and transfer.function == "fmi2GetReal" and all(vr in states for vr in vrs)):
+            return []
+        x, slots, n = self.system._x, self.slots, transfer.n
+        index, first = [states[vr] for vr in vrs], transfer.slots[0]
+        if index == list(range(index[0], index[0] + n)) and transfer.slots == list(range(first, first + n)):
+            dst, src = slots[first:first + n], x[index[0]:index[0] + n]
+
+            def copy() -> int:
+                dst[:] = src
+                return 0
+            return [(copy, (), slots.data[first:first + n], transfer)]
+        own, src, dst = (np.ctypeslib.as_array(transfer.values), np.array(index, dtype=np.intp),
+                         np.array(transfer.slots, dtype=np.intp))
+
+        def gather() -> int:
+            own[:] = x[src]
+            slots[dst] = own
+            return 0
+        return [(gather, (), transfer.view, transfer)]
 
     def _address(self, slot: int) -> ctypes.c_void_p:
         return ctypes.c_void_p(self.slots.ctypes.data + 8 * slot)
@@ -497,13 +595,12 @@ class _Buffers:
     def resolve(self, t: float, record: bool, connected: bool = True) -> bool:
         """The values at the current point (record: the recorded ones too; not connected: only those).
         Returns whether every connected value was set (a row's resolution may leave some out)."""
-        steps = (self.row_steps if record else self.connected) if connected else []
-        for sequence in (steps, self.recorded) if record else (steps,):
-            for fn, args, check, transfer in sequence:
-                if fn(*args) > 1:
-                    raise self.system.failure(transfer.inst, transfer.function)
-                if check is not None and not math.isfinite(sum(check)):
-                    self._not_finite(transfer, check, t)
+        steps = (self.row_sequence if record else self.connected) if connected else self.recorded if record else []
+        for fn, args, check, transfer in steps:
+            if fn(*args) > 1:
+                raise self.system.failure(transfer.inst, transfer.function)
+            if check is not None and not math.isfinite(sum(check)):
+                self._not_finite(transfer, check, t)
         return not record or self.complete_rows
 
     @staticmethod

@@ -263,10 +263,12 @@ class System:
             return
         self._point, self.time = None, None
         set_time, set_states = self._row_calls
-        x, values = self._x, self.values
+        x, t_, values = self._x, self._t, self.values
+        assert isinstance(values, _Buffers)
+        steps, slots, columns = values.row_sequence, values.slots, values.columns
+        # _row_point and _Buffers.resolve unrolled (2.6 -> 2.2 us a row); append checks for a stop between rows
         for t, state in zip(times, np.multiply(xis.T, self.scale, order="C")):
-            stopping.check()
-            self._t.value = t
+            t_.value = t
             for fn, args, unit in set_time:
                 if fn(*args) > 1:
                     raise self.failure(unit.inst, "fmi2SetTime")
@@ -274,8 +276,12 @@ class System:
             for fn, args, unit in set_states:
                 if fn(*args) > 1:
                     raise self.failure(unit.inst, "fmi2SetContinuousStates")
-            values.resolve(t, True)
-            append(t, values.row())
+            for fn, args, check, transfer in steps:
+                if fn(*args) > 1:
+                    raise self.failure(transfer.inst, transfer.function)
+                if check is not None and not math.isfinite(sum(check)):
+                    values.not_finite(transfer, check, t)
+            append(t, slots[columns].tolist())
 
     def resolve(self, t: float, record: bool = False) -> None:
         """The connected values at the current point (outside the evaluations: initialization, events)."""
@@ -600,11 +606,11 @@ class _Buffers:
             if fn(*args) > 1:
                 raise self.system.failure(transfer.inst, transfer.function)
             if check is not None and not math.isfinite(sum(check)):
-                self._not_finite(transfer, check, t)
+                self.not_finite(transfer, check, t)
         return not record or self.complete_rows
 
     @staticmethod
-    def _not_finite(transfer: Transfer, values, t: float) -> None:
+    def not_finite(transfer: Transfer, values, t: float) -> None:
         """A value of `values` (transfer's, in its order) is not finite, or their sum overflowed."""
         for i, v in enumerate(values):
             if not math.isfinite(v):

@@ -31,6 +31,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.integrate import BDF, LSODA, Radau
+from scipy.integrate._ivp.lsoda import LsodaDenseOutput
 from scipy.optimize import brentq
 
 from . import binding, stopping
@@ -45,7 +46,68 @@ from .plan import Plan, make_plan
 from .results import Result
 from .ssd import Scenario
 
-SOLVERS = {"LSODA": LSODA, "BDF": BDF, "Radau": Radau}
+
+class _LSODA(LSODA):
+    """scipy's LSODA with a cheaper dense output. Works around: scipy's LSODA.dense_output builds a
+    DenseOutput object each step (an np.arange of the orders among it) and checks its argument at every call,
+    about 2.5 us of the 10 us a step's rows pay for the dense output (0.5 ms of maglev_regulation_prop2's
+    8.6, native FMUs). `_dense_output_impl` (the hook scipy's OdeSolver leaves to its methods) gives the
+    interpolation of scipy's LsodaDenseOutput: the Nordsieck history read as scipy's LSODA._dense_output_impl
+    reads it, evaluated at an array of times by the same numpy operations (the same doubles), scalars by
+    scipy's own object. The first dense output of each solve is compared with scipy's, and a difference (a
+    scipy whose internals moved) turns this off for the solve."""
+
+    _powers: dict[int, np.ndarray] = {}        # order -> the exponents 0..order as a column
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._trusted: bool | None = None
+
+    def _dense_output_impl(self):
+        if self._trusted is False:
+            return super()._dense_output_impl()
+        try:
+            dense = self._nordsieck()
+        except (AttributeError, IndexError, TypeError, ValueError):
+            self._trusted = False
+            return super()._dense_output_impl()
+        if self._trusted is None:
+            reference = super()._dense_output_impl()
+            probe = np.array([self.t_old + 0.3 * (self.t - self.t_old), self.t])
+            self._trusted = bool(np.array_equal(dense(probe), reference(probe)))
+            if not self._trusted:
+                return reference
+        return dense
+
+    def _nordsieck(self) -> "_NordsieckDense":
+        integrator = self._lsoda_solver._integrator
+        iwork, rwork = integrator.iwork, integrator.rwork
+        order, h = int(iwork[13]), rwork[11]
+        yh = np.reshape(rwork[20:20 + (order + 1) * self.n], (self.n, order + 1), order="F").copy()
+        if iwork[14] < order:
+            yh[:, -1] *= (h / rwork[10]) ** order
+        powers = self._powers.get(order)
+        if powers is None:
+            powers = self._powers[order] = np.arange(order + 1)[:, None]
+        return _NordsieckDense(self.t_old, self.t, h, order, yh, powers)
+
+
+class _NordsieckDense:
+    """LSODA's interpolant on [t_old, t] (_LSODA): at an array of times the Nordsieck sum of scipy's
+    LsodaDenseOutput._call_impl; anything else through scipy's object."""
+
+    __slots__ = ("t_old", "t", "h", "order", "yh", "powers")
+
+    def __init__(self, t_old: float, t: float, h: float, order: int, yh: np.ndarray, powers: np.ndarray):
+        self.t_old, self.t, self.h, self.order, self.yh, self.powers = t_old, t, h, order, yh, powers
+
+    def __call__(self, t):
+        if isinstance(t, np.ndarray) and t.ndim == 1:
+            return np.dot(self.yh, ((t - self.t) / self.h) ** self.powers)
+        return LsodaDenseOutput(self.t_old, self.t, self.h, self.order, self.yh)(t)
+
+
+SOLVERS = {"LSODA": _LSODA, "BDF": BDF, "Radau": Radau}
 DEFAULT_SOLVER = "LSODA"
 DEFAULT_TOLERANCE = 1e-6          # the solver's rtol when the run asks for neither rtol nor a tolerance
 MAX_EVENT_ITERATIONS = 100        # fmi2NewDiscreteStates rounds of one event
@@ -417,13 +479,13 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
         while solver.status == "running" and not restart:
             message = solver.step()
             if solver.status == "failed":
-                raise SimulationError(f"Model Exchange: {type(solver).__name__} failed at t = {solver.t:.9g} s: "
+                raise SimulationError(f"Model Exchange: {system.statistics.solver} failed at t = {solver.t:.9g} s: "
                                       f"{message}{system.discarded}")
             system.statistics.steps += 1
             if system.statistics.steps > limit:
                 raise RunLimit("Model Exchange: {solver} at rtol {rtol:g} took more than {limit:.3g} steps and reached "
                                "t = {t:.9g} s of {t_stop:g} s; give a larger {max_steps} to let it go on", "max_steps",
-                               solver=type(solver).__name__, rtol=rtol, limit=limit, t=solver.t, t_stop=t_stop)
+                               solver=system.statistics.solver, rtol=rtol, limit=limit, t=solver.t, t_stop=t_stop)
             stopping.check()                                    # besides every evaluation (ode.System.set_point)
             t_new, x_new = solver.t, solver.y
             event_at = None

@@ -265,9 +265,30 @@ class System:
         set_time, set_states = self._row_calls
         x, t_, values = self._x, self._t, self.values
         assert isinstance(values, _Buffers)
-        steps, slots, columns = values.row_sequence, values.slots, values.columns
+        slots, columns = values.slots, values.columns
+        states = np.multiply(xis.T, self.scale, order="C")
+        if values.row_states is not None and not set_states:
+            # the row's FMUs have no states: the state outputs of all rows picked at once, one copy a row
+            target, index = values.row_states
+            picked = states[:, index]
+            if np.isfinite(picked).all():
+                steps = values.row_calls
+                for t, state in zip(times, picked):
+                    t_.value = t
+                    for fn, args, unit in set_time:
+                        if fn(*args) > 1:
+                            raise self.failure(unit.inst, "fmi2SetTime")
+                    slots[target] = state
+                    for fn, args, check, transfer in steps:
+                        if fn(*args) > 1:
+                            raise self.failure(transfer.inst, transfer.function)
+                        if check is not None and not math.isfinite(sum(check)):
+                            values.not_finite(transfer, check, t)
+                    append(t, slots[columns].tolist())
+                return
+        steps = values.row_sequence
         # _row_point and _Buffers.resolve unrolled (2.6 -> 2.2 us a row); append checks for a stop between rows
-        for t, state in zip(times, np.multiply(xis.T, self.scale, order="C")):
+        for t, state in zip(times, states):
             t_.value = t
             for fn, args, unit in set_time:
                 if fn(*args) > 1:
@@ -503,6 +524,7 @@ class _Buffers:
         self.columns = np.array(plan.column_slots, dtype=np.intp)
         shown = set(plan.column_slots)
         self.units = {u.inst.name: u for u in system.units}
+        self._states: dict[int, tuple[list[int], list[int]]] = {}    # id of a state step: (its slots, x's indices)
         groups: list[tuple] = []     # (transfer, slots it writes, slots it reads, its steps, it calls its FMU)
         for gets, sets in plan.stages:
             for t, _ in gets:
@@ -529,6 +551,15 @@ class _Buffers:
         self.row_steps = [step for steps in reversed(kept) for step in steps]
         self.complete_rows = len(self.row_steps) == len(self.connected)
         self.row_sequence = self.row_steps + self.recorded
+        # a row's state outputs at once (System.rows): where their slots are consecutive, one copy per row from
+        # the unscaled states into them, and the row's other steps
+        copies = [self._states[id(step)] for step in self.row_sequence if id(step) in self._states]
+        dst = [k for slots_, _ in copies for k in slots_]
+        index = [i for _, indices in copies for i in indices]
+        self.row_states: tuple[slice, Any] | None = None
+        if dst and dst == list(range(dst[0], dst[0] + len(dst))):
+            self.row_states = (slice(dst[0], dst[0] + len(dst)), _slice_if_consecutive(index))
+        self.row_calls = [step for step in self.row_sequence if id(step) not in self._states]
 
     def _from_states(self, transfer: Transfer) -> list[tuple]:
         """The steps of a get whose every variable is a continuous state of its FMU (state_references): its
@@ -546,15 +577,18 @@ class _Buffers:
             def copy() -> int:
                 dst[:] = src
                 return 0
-            return [(copy, (), slots.data[first:first + n], transfer)]
-        own, src, dst = (np.ctypeslib.as_array(transfer.values), np.array(index, dtype=np.intp),
-                         np.array(transfer.slots, dtype=np.intp))
+            step: tuple = (copy, (), slots.data[first:first + n], transfer)
+        else:
+            own, source, target = (np.ctypeslib.as_array(transfer.values), np.array(index, dtype=np.intp),
+                                   np.array(transfer.slots, dtype=np.intp))
 
-        def gather() -> int:
-            own[:] = x[src]
-            slots[dst] = own
-            return 0
-        return [(gather, (), transfer.view, transfer)]
+            def gather() -> int:
+                own[:] = x[source]
+                slots[target] = own
+                return 0
+            step = (gather, (), transfer.view, transfer)
+        self._states[id(step)] = (list(transfer.slots), index)
+        return [step]
 
     def _address(self, slot: int) -> ctypes.c_void_p:
         return ctypes.c_void_p(self.slots.ctypes.data + 8 * slot)

@@ -2,9 +2,10 @@
 integrated as one ODE (ode.System) by scipy (`simulate(..., interface_type="ModelExchange")`).
 
 After each solver step the rows on the recording grid t0 + n h are taken from the solver's dense output
-(the FMUs set to the interpolated state; a grid point at an event's time gets the values after the event,
-as a Co-Simulation step to that time would), or, with `solver_steps`, one row at every step (at an event,
-the values before it). Events: the FMUs' event indicators are compared between steps; a change of domain
+(the FMUs a row needs set to the interpolated state, an output that is a state read from it; a grid
+point at an event's time gets the values after the event, as a Co-Simulation step to that time would), or,
+with `solver_steps`, one row at every step (at an event, the values before it). Events: the FMUs' event
+indicators are compared between steps; a change of domain
 (z > 0 or z <= 0, FMI 2.0 section 3.1) is located on the dense output (brentq, then the first time found in
 the new domain, so that the FMU sees its event's condition) and every FMU enters event mode there; an FMU
 that refuses (fmi2Error: e.g. a state on the boundary of its model's domain) or asks to terminate ends the

@@ -24,12 +24,15 @@ Cost: with native FMUs an evaluation is 8-10 FMI calls of 0.2 us each, and the P
 rest. So every call of an evaluation is made on arguments built once (the C functions without fmpy's
 argument types, fmi.bare; the states, derivatives, indicators and connected values in numpy buffers
 passed by address: `_Buffers`), a point the FMUs are at already is not set again (the step's end: its
-indicators, then fmi2CompletedIntegratorStep), a row makes only the calls its recorded values need, the
+indicators, then fmi2CompletedIntegratorStep), a row makes only the calls its recorded values need (an
+output that is a continuous state, state_references, is taken from the state vector: the paper's loops' rows
+call only the controller, 3 calls instead of 6, and a step's rows are made in one loop, `rows`), the
 Jacobian's directional derivatives write straight into one matrix (`_JacobianPlan`), and no clock is read
 unless `timed`. Measured on the maglev loop of maglev_tracking_D-1_R0.82 (2e4 evaluations at one state,
 CPU time, this project's 2-core machine), before this design and after: a right-hand side 14.0 -> 4.4 us
 with the native FMUs (31.8 -> 17.9 us with the pythonfmu ones), a Jacobian 55 -> 14 us (189 -> 92), a
-recorded row 11.3 -> 3.3 us (25.8 -> 13.9).
+recorded row 11.3 -> 3.3 us (25.8 -> 13.9); the rows of maglev_regulation_prop2 with state outputs from the
+state vector 2.8 -> 2.2 us a row (docs/scenarios.md).
 """
 from __future__ import annotations
 

@@ -580,3 +580,72 @@ def test_a_tolerance_run_whose_temporary_file_fills_the_disk_says_so(make, monke
                                               f"on device") as info:
         simulate(scenario, **ME, tolerance=1e-4, record=["d.x"])
     assert len(info.value.result) == 11
+
+
+def test_outputs_that_are_states_are_read_from_the_state_vector_and_only_those(make, toys, monkeypatch):
+    """An output whose value reference is a continuous state (<Derivatives>' derivative attribute points at
+    it: Dahlquist's x, the ball's h and v) is the state the solver set: a row takes it from the state vector
+    and calls only the FMUs its other values need (recording d.x and g.y of the loop: the Gain, not the
+    Dahlquist). Faulty's y equals its state x but is not declared as one: it is read by fmi2GetReal, so
+    its NaN from nan_at on ends the run at a row. The rows equal, bit for bit, those of the same run with
+    every output read by fmi2GetReal (state_references emptied)."""
+    from fmpy import read_model_description
+    declared = {kind: sorted(v for v, _ in ode.state_references(read_model_description(str(fmu))).items())
+                for kind, fmu in (("d", toys["Dahlquist"]), ("b", toys["BouncingBall"]),
+                                  ("f", toys["Faulty"]), ("g", toys["Gain"]))}
+    md = {kind: read_model_description(str(toys[name])) for kind, name in (("d", "Dahlquist"),
+                                                                               ("b", "BouncingBall"), ("f", "Faulty"))}
+    names = {k: sorted(v.name for v in md[k].modelVariables if v.valueReference in declared[k] and v.type == "Real")
+             for k in md}
+    assert names == {"d": ["x"], "b": ["h", "v"], "f": ["x"]} and declared["g"] == []      # Faulty's y: not a state
+
+    scenario = make(**LOOP, parameters=LOOP_PARAMETERS, stop_time=1.0, step_size=0.01)
+    records = (["d.x", "g.y"], ["f.x", "g.y", "d.x"])     # the states' slots one after the other, or not
+    with me.ModelExchangeSimulation(scenario) as sim:
+        for record, consecutive in zip(records, (True, False)):
+            plan = make_plan(scenario, sim.instances, sim.connections, record)
+            values = ode.System(scenario, sim.instances, sim.connections, plan).values
+            assert values.row_units == {"g"} and (values.row_states is not None) == consecutive
+    fast = [simulate(scenario, **ME, solver=solver, rtol=1e-6, record=record) for record in records
+            for solver in ("LSODA", "Radau")]
+    monkeypatch.setattr(ode, "state_references", lambda md, offset=0: {})
+    slow = [simulate(scenario, **ME, solver=solver, rtol=1e-6, record=record) for record in records
+            for solver in ("LSODA", "Radau")]
+    for a, b in zip(fast, slow):
+        np.testing.assert_array_equal(np.array(a.rows), np.array(b.rows))
+    monkeypatch.undo()
+
+    faulty = make([("f", "Faulty")], [], {"f": {"nan_at": 0.305}})
+    with pytest.raises(SimulationError, match=r"f\.y = nan at t = ") as info:
+        simulate(faulty, **ME, record=["f.y"])
+    assert 0.305 <= event_time(info.value) < 0.32
+
+
+def test_lsoda_dense_output_is_scipys_and_steps_aside_when_it_differs(monkeypatch):
+    """model_exchange._LSODA's dense output (the Nordsieck sum without scipy's DenseOutput object) equals
+    scipy's LSODA's, bit for bit, at arrays of times and at a scalar, over the steps of a stiff and an
+    oscillating problem; where it would differ (a scipy whose internals moved: here a history scaled by
+    1 + 1e-9), the first comparison turns it off and the solve gets scipy's own."""
+    from scipy.integrate import LSODA
+
+    def f(t, y):
+        return np.array([y[1], -y[0] - 0.1 * y[1], -1e3 * (y[2] - np.cos(t))])
+    for trusted in (True, False):
+        if not trusted:
+            nordsieck = me._LSODA._nordsieck
+            monkeypatch.setattr(me._LSODA, "_nordsieck", lambda self: _scaled(nordsieck(self)))
+        ours, theirs = me._LSODA(f, 0.0, np.array([1.0, 0.0, 0.0]), 10.0, rtol=1e-6, atol=1e-9), \
+            LSODA(f, 0.0, np.array([1.0, 0.0, 0.0]), 10.0, rtol=1e-6, atol=1e-9)
+        for _ in range(60):
+            ours.step()
+            theirs.step()
+            times = np.linspace(theirs.t_old, theirs.t, 7)[1:]
+            mine, scipys = ours.dense_output(), theirs.dense_output()
+            np.testing.assert_array_equal(mine(times), scipys(times))
+            np.testing.assert_array_equal(mine(float(times[2])), scipys(float(times[2])))
+        assert ours._trusted is trusted
+
+
+def _scaled(dense):
+    dense.yh *= 1 + 1e-9
+    return dense

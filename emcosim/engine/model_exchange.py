@@ -2,9 +2,10 @@
 integrated as one ODE (ode.System) by scipy (`simulate(..., interface_type="ModelExchange")`).
 
 After each solver step the rows on the recording grid t0 + n h are taken from the solver's dense output
-(the FMUs set to the interpolated state; a grid point at an event's time gets the values after the event,
-as a Co-Simulation step to that time would), or, with `solver_steps`, one row at every step (at an event,
-the values before it). Events: the FMUs' event indicators are compared between steps; a change of domain
+(the FMUs a row needs set to the interpolated state, an output that is a state read from it; a grid
+point at an event's time gets the values after the event, as a Co-Simulation step to that time would), or,
+with `solver_steps`, one row at every step (at an event, the values before it). Events: the FMUs' event
+indicators are compared between steps; a change of domain
 (z > 0 or z <= 0, FMI 2.0 section 3.1) is located on the dense output (brentq, then the first time found in
 the new domain, so that the FMU sees its event's condition) and every FMU enters event mode there; an FMU
 that refuses (fmi2Error: e.g. a state on the boundary of its model's domain) or asks to terminate ends the
@@ -31,6 +32,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.integrate import BDF, LSODA, Radau
+from scipy.integrate._ivp.lsoda import LsodaDenseOutput
 from scipy.optimize import brentq
 
 from . import binding, stopping
@@ -45,7 +47,68 @@ from .plan import Plan, make_plan
 from .results import Result
 from .ssd import Scenario
 
-SOLVERS = {"LSODA": LSODA, "BDF": BDF, "Radau": Radau}
+
+class _LSODA(LSODA):
+    """scipy's LSODA with a cheaper dense output. Works around: scipy's LSODA.dense_output builds a
+    DenseOutput object each step (an np.arange of the orders among it) and checks its argument at every call,
+    about 2.5 us of the 10 us a step's rows pay for the dense output (0.5 ms of maglev_regulation_prop2's
+    8.6, native FMUs). `_dense_output_impl` (the hook scipy's OdeSolver leaves to its methods) gives the
+    interpolation of scipy's LsodaDenseOutput: the Nordsieck history read as scipy's LSODA._dense_output_impl
+    reads it, evaluated at an array of times by the same numpy operations (the same doubles), scalars by
+    scipy's own object. The first dense output of each solve is compared with scipy's, and a difference (a
+    scipy whose internals moved) turns this off for the solve."""
+
+    _powers: dict[int, np.ndarray] = {}        # order -> the exponents 0..order as a column
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._trusted: bool | None = None
+
+    def _dense_output_impl(self):
+        if self._trusted is False:
+            return super()._dense_output_impl()
+        try:
+            dense = self._nordsieck()
+        except (AttributeError, IndexError, TypeError, ValueError):
+            self._trusted = False
+            return super()._dense_output_impl()
+        if self._trusted is None:
+            reference = super()._dense_output_impl()
+            probe = np.array([self.t_old + 0.3 * (self.t - self.t_old), self.t])
+            self._trusted = bool(np.array_equal(dense(probe), reference(probe)))
+            if not self._trusted:
+                return reference
+        return dense
+
+    def _nordsieck(self) -> "_NordsieckDense":
+        integrator = self._lsoda_solver._integrator
+        iwork, rwork = integrator.iwork, integrator.rwork
+        order, h = int(iwork[13]), rwork[11]
+        yh = np.reshape(rwork[20:20 + (order + 1) * self.n], (self.n, order + 1), order="F").copy()
+        if iwork[14] < order:
+            yh[:, -1] *= (h / rwork[10]) ** order
+        powers = self._powers.get(order)
+        if powers is None:
+            powers = self._powers[order] = np.arange(order + 1)[:, None]
+        return _NordsieckDense(self.t_old, self.t, h, order, yh, powers)
+
+
+class _NordsieckDense:
+    """LSODA's interpolant on [t_old, t] (_LSODA): at an array of times the Nordsieck sum of scipy's
+    LsodaDenseOutput._call_impl; anything else through scipy's object."""
+
+    __slots__ = ("t_old", "t", "h", "order", "yh", "powers")
+
+    def __init__(self, t_old: float, t: float, h: float, order: int, yh: np.ndarray, powers: np.ndarray):
+        self.t_old, self.t, self.h, self.order, self.yh, self.powers = t_old, t, h, order, yh, powers
+
+    def __call__(self, t):
+        if isinstance(t, np.ndarray) and t.ndim == 1:
+            return np.dot(self.yh, ((t - self.t) / self.h) ** self.powers)
+        return LsodaDenseOutput(self.t_old, self.t, self.h, self.order, self.yh)(t)
+
+
+SOLVERS = {"LSODA": _LSODA, "BDF": BDF, "Radau": Radau}
 DEFAULT_SOLVER = "LSODA"
 DEFAULT_TOLERANCE = 1e-6          # the solver's rtol when the run asks for neither rtol nor a tolerance
 MAX_EVENT_ITERATIONS = 100        # fmi2NewDiscreteStates rounds of one event
@@ -381,14 +444,18 @@ class _Grid:
     def __getitem__(self, k: int) -> float:
         return self.t0 + k * self.h if k < self.n else self.t_stop
 
-    def before(self, k: int, t_end: float, most: int) -> np.ndarray:
-        """The grid points from the k-th on that lie before t_end, at most `most` of them (the same doubles as
-        __getitem__'s: t0 + k h in IEEE arithmetic)."""
-        m = min(self.size - k, most, max(1, int((t_end - self[k]) / self.h) + 2))
-        times = self.t0 + np.arange(k, k + m) * self.h
-        if k + m == self.size:
-            times[-1] = self.t_stop
-        return times[:int(np.searchsorted(times, t_end))]
+    def before(self, k: int, t_end: float, most: int) -> list[float]:
+        """The grid points from the k-th on that lie before t_end, at most `most` of them (__getitem__'s
+        doubles; a step holds a few: Python's floats cost less than numpy's arrays here)."""
+        times: list[float] = []
+        end = min(self.size, k + most)
+        while k < end:
+            t = self.t0 + k * self.h if k < self.n else self.t_stop
+            if not t < t_end:
+                break
+            times.append(t)
+            k += 1
+        return times
 
 
 def _integrate(system: System, result: Result, planned: Experiment, solver_class, rtol: float,
@@ -413,13 +480,13 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
         while solver.status == "running" and not restart:
             message = solver.step()
             if solver.status == "failed":
-                raise SimulationError(f"Model Exchange: {type(solver).__name__} failed at t = {solver.t:.9g} s: "
+                raise SimulationError(f"Model Exchange: {system.statistics.solver} failed at t = {solver.t:.9g} s: "
                                       f"{message}{system.discarded}")
             system.statistics.steps += 1
             if system.statistics.steps > limit:
                 raise RunLimit("Model Exchange: {solver} at rtol {rtol:g} took more than {limit:.3g} steps and reached "
                                "t = {t:.9g} s of {t_stop:g} s; give a larger {max_steps} to let it go on", "max_steps",
-                               solver=type(solver).__name__, rtol=rtol, limit=limit, t=solver.t, t_stop=t_stop)
+                               solver=system.statistics.solver, rtol=rtol, limit=limit, t=solver.t, t_stop=t_stop)
             stopping.check()                                    # besides every evaluation (ode.System.set_point)
             t_new, x_new = solver.t, solver.y
             event_at = None
@@ -534,10 +601,7 @@ def _rows(system: System, result: Result, dense_output: Callable[[], Any], grid:
         # (scipy's cost is per call: 3-7 us, as much as the FMUs' calls of a row)
         times = grid.before(k, t_end, CHUNK)
         dense = dense_output() if dense is None else dense
-        states = np.ascontiguousarray(np.asarray(dense(times)).T)
-        for tk, x in zip(times.tolist(), states):
-            system.set_point(tk, x, record=True)
-            result.append(tk, system.row())
+        system.rows(times, dense(np.array(times)), result.append)
         k += len(times)
     if k < grid.size and grid[k] == t_end and not before_event:
         system.set_point(t_end, x_end, record=True)

@@ -24,12 +24,15 @@ Cost: with native FMUs an evaluation is 8-10 FMI calls of 0.2 us each, and the P
 rest. So every call of an evaluation is made on arguments built once (the C functions without fmpy's
 argument types, fmi.bare; the states, derivatives, indicators and connected values in numpy buffers
 passed by address: `_Buffers`), a point the FMUs are at already is not set again (the step's end: its
-indicators, then fmi2CompletedIntegratorStep), a row makes only the calls its recorded values need, the
+indicators, then fmi2CompletedIntegratorStep), a row makes only the calls its recorded values need (an
+output that is a continuous state, state_references, is taken from the state vector: the paper's loops' rows
+call only the controller, 3 calls instead of 6, and a step's rows are made in one loop, `rows`), the
 Jacobian's directional derivatives write straight into one matrix (`_JacobianPlan`), and no clock is read
 unless `timed`. Measured on the maglev loop of maglev_tracking_D-1_R0.82 (2e4 evaluations at one state,
 CPU time, this project's 2-core machine), before this design and after: a right-hand side 14.0 -> 4.4 us
 with the native FMUs (31.8 -> 17.9 us with the pythonfmu ones), a Jacobian 55 -> 14 us (189 -> 92), a
-recorded row 11.3 -> 3.3 us (25.8 -> 13.9).
+recorded row 11.3 -> 3.3 us (25.8 -> 13.9); the rows of maglev_regulation_prop2 with state outputs from the
+state vector 2.8 -> 2.2 us a row (docs/scenarios.md).
 """
 from __future__ import annotations
 
@@ -91,6 +94,7 @@ class _Unit:
     x: Any = None                                   # ctypes arrays of its states, derivatives, indicators
     dx: Any = None
     z: Any = None
+    states: dict = field(default_factory=dict)      # value reference of a continuous state -> its index in x
 
 
 class System:
@@ -110,6 +114,7 @@ class System:
         for inst in instances.values():
             md = inst.model_description
             unit = _Unit(inst, offset, len(md.derivatives), int(md.numberOfEventIndicators or 0))
+            unit.states = state_references(md, offset)
             for name in ("fmi2SetTime", "fmi2SetContinuousStates", "fmi2GetDerivatives", "fmi2GetEventIndicators",
                          "fmi2GetContinuousStates", "fmi2GetNominalsOfContinuousStates", "fmi2EnterEventMode",
                          "fmi2NewDiscreteStates", "fmi2EnterContinuousTimeMode", "fmi2CompletedIntegratorStep"):
@@ -135,6 +140,11 @@ class System:
         if buffered is None:
             buffered = all(t.real and t.orders is None for t in transfers(plan))
         self.values: _Buffers | _Transfers = _Buffers(self) if buffered else _Transfers(self)
+        # a row's calls (_Buffers.row_units): the time and the states of only the FMUs the recorded values need
+        row_units = getattr(self.values, "row_units", None)
+        self._row_calls = None if row_units is None or row_units == {u.inst.name for u in self.units} else (
+            [c for c in self._set_time if c[2].inst.name in row_units],
+            [c for c in self._set_states if c[2].inst.name in row_units])
         self.jacobian_plan = _JacobianPlan(self) if all(
             u.inst.model_description.modelExchange.providesDirectionalDerivative for u in knowing) else None
 
@@ -211,6 +221,9 @@ class System:
                 self.values.resolve(t, record=True, connected=False)
                 self._recorded = True
             return
+        if record and self._row_calls is not None:
+            self._row_point(t, xi)
+            return
         self._point = None
         if t != self.time:
             self.time = t
@@ -224,6 +237,75 @@ class System:
                 raise self.failure(unit.inst, "fmi2SetContinuousStates")
         if self.values.resolve(t, record):
             self._point, self._recorded = point, record
+
+    def _row_point(self, t: float, xi: np.ndarray) -> None:
+        """A row's point where some FMUs are not needed (_Buffers: a recorded output that is a continuous state
+        is the solver's value, an FMU nobody reads is not called): fmi2SetTime and fmi2SetContinuousStates only
+        on the FMUs the row calls, then the row's values. The FMUs are then at different points: the next
+        evaluation sets every FMU again."""
+        self._point, self.time = None, None
+        set_time, set_states = self._row_calls
+        self._t.value = t
+        for fn, args, unit in set_time:
+            if fn(*args) > 1:
+                raise self.failure(unit.inst, "fmi2SetTime")
+        np.multiply(xi, self.scale, out=self._x)
+        for fn, args, unit in set_states:
+            if fn(*args) > 1:
+                raise self.failure(unit.inst, "fmi2SetContinuousStates")
+        self.values.resolve(t, record=True)
+
+    def rows(self, times: list[float], xis: np.ndarray, append: Callable[[float, list], None]) -> None:
+        """The rows at `times` (a step's grid points) of the scaled states xis[:, k] (the dense output's):
+        append(t, the recorded values) for each. Where a row needs only some FMUs (_row_point), the states of
+        all rows are unscaled in one product and each row makes only its calls."""
+        if self._row_calls is None:
+            for t, xi in zip(times, np.ascontiguousarray(xis.T)):
+                self.set_point(t, xi, record=True)
+                append(t, self.values.row())
+            return
+        self._point, self.time = None, None
+        set_time, set_states = self._row_calls
+        x, t_, values = self._x, self._t, self.values
+        assert isinstance(values, _Buffers)
+        slots, columns = values.slots, values.columns
+        states = np.multiply(xis.T, self.scale, order="C")
+        if values.row_states is not None and not set_states:
+            # the row's FMUs have no states: the state outputs of all rows picked at once, one copy a row
+            target, index = values.row_states
+            picked = states[:, index]
+            if np.isfinite(picked).all():
+                steps = values.row_calls
+                for t, state in zip(times, picked):
+                    t_.value = t
+                    for fn, args, unit in set_time:
+                        if fn(*args) > 1:
+                            raise self.failure(unit.inst, "fmi2SetTime")
+                    slots[target] = state
+                    for fn, args, check, transfer in steps:
+                        if fn(*args) > 1:
+                            raise self.failure(transfer.inst, transfer.function)
+                        if check is not None and not math.isfinite(sum(check)):
+                            values.not_finite(transfer, check, t)
+                    append(t, slots[columns].tolist())
+                return
+        steps = values.row_sequence
+        # _row_point and _Buffers.resolve unrolled (2.6 -> 2.2 us a row); append checks for a stop between rows
+        for t, state in zip(times, states):
+            t_.value = t
+            for fn, args, unit in set_time:
+                if fn(*args) > 1:
+                    raise self.failure(unit.inst, "fmi2SetTime")
+            x[:] = state
+            for fn, args, unit in set_states:
+                if fn(*args) > 1:
+                    raise self.failure(unit.inst, "fmi2SetContinuousStates")
+            for fn, args, check, transfer in steps:
+                if fn(*args) > 1:
+                    raise self.failure(transfer.inst, transfer.function)
+                if check is not None and not math.isfinite(sum(check)):
+                    values.not_finite(transfer, check, t)
+            append(t, slots[columns].tolist())
 
     def resolve(self, t: float, record: bool = False) -> None:
         """The connected values at the current point (outside the evaluations: initialization, events)."""
@@ -377,6 +459,17 @@ class System:
         return wanted
 
 
+def state_references(model_description, offset: int = 0) -> dict[int, int]:
+    """{value reference: index in x} of an FMU's continuous states, x's part from `offset` on: the Real
+    variables that the `derivative` attributes of its <ModelStructure><Derivatives> point at (FMI 2.0,
+    section 2.2.8: the order of <Derivatives> is the order of fmi2GetContinuousStates; fmpy resolves the
+    attribute to the variable). A variable with such a value reference IS the state (an alias has its
+    value), so its value at a point is the state set there; any other variable, even one whose equation
+    copies a state, is read by fmi2GetReal."""
+    return {d.variable.derivative.valueReference: offset + j for j, d in enumerate(model_description.derivatives)
+            if d.variable.derivative is not None}
+
+
 def needs_completed_step(model_description) -> bool:
     """Whether the FMU asks for fmi2CompletedIntegratorStep after every step (completedIntegratorStepNotNeeded
     false or absent). Works around fmpy (0.3.32): for FMI 2.0 its read_model_description stores that attribute
@@ -433,24 +526,72 @@ class _Buffers:
         self.slots = np.zeros(max(1, n_slots(plan)))
         self.columns = np.array(plan.column_slots, dtype=np.intp)
         shown = set(plan.column_slots)
-        groups: list[tuple] = []     # (transfer, slots it writes, slots it reads, its steps)
+        self.units = {u.inst.name: u for u in system.units}
+        self._states: dict[int, tuple[list[int], list[int]]] = {}    # id of a state step: (its slots, x's indices)
+        groups: list[tuple] = []     # (transfer, slots it writes, slots it reads, its steps, it calls its FMU)
         for gets, sets in plan.stages:
-            groups += [(t, t.slots, [], self._get(t)) for t, _ in gets]
-            groups += [(t, t.slots, [s for s, _, _ in sources], self._set(t, sources, shown)) for t, sources in sets]
-        self.connected = [step for *_, steps in groups for step in steps]
-        self.recorded = [step for t, _ in plan.record for step in self._get(t)]
-        # the steps a row needs, found backwards from the recorded slots
-        needed, read = set(plan.column_slots), {t.inst.name for t, _ in plan.record}
+            for t, _ in gets:
+                states = self._from_states(t)
+                groups.append((t, t.slots, [], states or self._get(t), not states))
+            groups += [(t, t.slots, [s for s, _, _ in sources], self._set(t, sources, shown), True)
+                       for t, sources in sets]
+        self.connected = [step for *_, steps, _ in groups for step in steps]
+        record = [(t, self._from_states(t)) for t, _ in plan.record]
+        self.recorded = [step for t, states in record for step in states or self._get(t)]
+        # the steps a row needs, found backwards from the recorded slots, and the FMUs they call
+        needed, read = set(plan.column_slots), {t.inst.name for t, states in record if not states}
         kept = []
-        for transfer, writes, reads, steps in reversed(groups):
+        self.row_units = set(read)
+        for transfer, writes, reads, steps, calls in reversed(groups):
             if transfer.getter and needed.intersection(writes) or not transfer.getter and (
                     transfer.inst.name in read or needed.intersection(writes)):
                 kept.append(steps)
                 needed.update(reads)
-                if transfer.getter:
-                    read.add(transfer.inst.name)
+                if calls:
+                    self.row_units.add(transfer.inst.name)
+                    if transfer.getter:
+                        read.add(transfer.inst.name)
         self.row_steps = [step for steps in reversed(kept) for step in steps]
         self.complete_rows = len(self.row_steps) == len(self.connected)
+        self.row_sequence = self.row_steps + self.recorded
+        # a row's state outputs at once (System.rows): where their slots are consecutive, one copy per row from
+        # the unscaled states into them, and the row's other steps
+        copies = [self._states[id(step)] for step in self.row_sequence if id(step) in self._states]
+        dst = [k for slots_, _ in copies for k in slots_]
+        index = [i for _, indices in copies for i in indices]
+        self.row_states: tuple[slice, Any] | None = None
+        if dst and dst == list(range(dst[0], dst[0] + len(dst))):
+            self.row_states = (slice(dst[0], dst[0] + len(dst)), _slice_if_consecutive(index))
+        self.row_calls = [step for step in self.row_sequence if id(step) not in self._states]
+
+    def _from_states(self, transfer: Transfer) -> list[tuple]:
+        """The steps of a get whose every variable is a continuous state of its FMU (state_references): its
+        values are the point's states (the system's _x, the very doubles fmi2SetContinuousStates gets), copied
+        into the buffer without calling the FMU; [] for any other transfer (read by its call)."""
+        states = self.units[transfer.inst.name].states
+        vrs = list(transfer.vr)
+        if not (transfer.getter and transfer.function == "fmi2GetReal" and all(vr in states for vr in vrs)):
+            return []
+        x, slots, n = self.system._x, self.slots, transfer.n
+        index, first = [states[vr] for vr in vrs], transfer.slots[0]
+        if index == list(range(index[0], index[0] + n)) and transfer.slots == list(range(first, first + n)):
+            dst, src = slots[first:first + n], x[index[0]:index[0] + n]
+
+            def copy() -> int:
+                dst[:] = src
+                return 0
+            step: tuple = (copy, (), slots.data[first:first + n], transfer)
+        else:
+            own, source, target = (np.ctypeslib.as_array(transfer.values), np.array(index, dtype=np.intp),
+                                   np.array(transfer.slots, dtype=np.intp))
+
+            def gather() -> int:
+                own[:] = x[source]
+                slots[target] = own
+                return 0
+            step = (gather, (), transfer.view, transfer)
+        self._states[id(step)] = (list(transfer.slots), index)
+        return [step]
 
     def _address(self, slot: int) -> ctypes.c_void_p:
         return ctypes.c_void_p(self.slots.ctypes.data + 8 * slot)
@@ -497,17 +638,16 @@ class _Buffers:
     def resolve(self, t: float, record: bool, connected: bool = True) -> bool:
         """The values at the current point (record: the recorded ones too; not connected: only those).
         Returns whether every connected value was set (a row's resolution may leave some out)."""
-        steps = (self.row_steps if record else self.connected) if connected else []
-        for sequence in (steps, self.recorded) if record else (steps,):
-            for fn, args, check, transfer in sequence:
-                if fn(*args) > 1:
-                    raise self.system.failure(transfer.inst, transfer.function)
-                if check is not None and not math.isfinite(sum(check)):
-                    self._not_finite(transfer, check, t)
+        steps = (self.row_sequence if record else self.connected) if connected else self.recorded if record else []
+        for fn, args, check, transfer in steps:
+            if fn(*args) > 1:
+                raise self.system.failure(transfer.inst, transfer.function)
+            if check is not None and not math.isfinite(sum(check)):
+                self.not_finite(transfer, check, t)
         return not record or self.complete_rows
 
     @staticmethod
-    def _not_finite(transfer: Transfer, values, t: float) -> None:
+    def not_finite(transfer: Transfer, values, t: float) -> None:
         """A value of `values` (transfer's, in its order) is not finite, or their sum overflowed."""
         for i, v in enumerate(values):
             if not math.isfinite(v):

@@ -269,6 +269,37 @@ def test_example_controllers_check_as_their_twins(tmp_path: Path, example: str, 
         _compare(natives[name], twins[name], EXAMPLE_CASES[name])
 
 
+# tests/test_described_plants.VARIABLE_MASS: M(q) = [[m + mu theta^2, 0.01 m], [0.01 m, J]], n_m = n_e = 2 (Newton)
+VARIABLE_MASS_CASES = {
+    # V = b z + kt theta^2 / 2 and Psi linear in q: hess_q H(eta_d) = diag(0, kt) (Assumption 1 asks > 0), and the
+    # z-row of hess H_d(eta_d) is zero but for its coupling to x_e: indefinite
+    "Bar_Proposition1": [({}, ["Assumption 1", "eq. (phi12): hess H_d(eta_d) > 0"])],
+    "Bar_Proposition2": [({}, []),
+                         ({"R_e_bar_1_1": 1.0}, [f"{K_E} >= 0 (Proposition 2)"]),             # R = 2 Ohm
+                         ({"mu": 50.0}, [])],                                # M(q): p* = 0 at eta_d, no effect
+    "Bar_Theorem2": [({}, []),
+                     ({"R_e_bar_1_1": 1.0}, [f"{K_E} >= 0 (Theorem 2)"])],
+    "Bar_Theorem3": [({}, []),
+                     ({"R_e_bar_2_2": 2.0}, [f"{K_E} > 0 (Theorem 3)"])],
+}
+
+
+@needs_gcc
+@pytest.mark.slow                         # 4 native and 4 twin builds: ~15 CPU-s
+def test_variable_mass_controllers_check_as_their_twins(tmp_path: Path) -> None:
+    """The design checks at Newton's reference of a plant with M(q) (its Hessians at eta_d with p* = 0)."""
+    from fmus.build import build_description
+    from fmus.native_build import build_native_description_fmus
+    from tests.test_described_plants import VARIABLE_MASS
+    toml = tmp_path / "variable_mass.toml"
+    toml.write_text(VARIABLE_MASS)
+    designs = ["Proposition1", "Proposition2", "Theorem2", "Theorem3"]
+    twins = build_description(toml, tmp_path / "twins", designs)
+    natives = build_native_description_fmus(toml, designs, tmp_path / "native")
+    for name, cases in VARIABLE_MASS_CASES.items():
+        _compare(natives[name], twins[name], cases)
+
+
 @needs_gcc
 @pytest.mark.slow                         # a C compile: the quick set has no room left
 def test_design_linear_algebra_against_numpy(tmp_path: Path) -> None:

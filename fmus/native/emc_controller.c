@@ -16,7 +16,7 @@
  * design_matrices_at_reference at the reference emc_ctrl_reference solves, from controller.c's emc_ctrl_design) are
  * checked at fmi2ExitInitializationMode as the twin checks
  * them (fmus/controller.py): a violated one is logged as a warning with strict = 0 and refuses initialization with
- * strict = 1, with the twin's words and numbers; elsewhere strict = 1 is refused.
+ * strict = 1, with the twin's words and numbers; elsewhere (n > 16) strict = 1 is refused.
  *
  * Sizes come from emc_config.h: EMC_N_CONTROLLER_INPUTS inputs and EMC_N_OUTPUTS outputs (u, n_e of them), the law's
  * Jacobian row-major (outputs x inputs); from controller.c emc_ctrl_law (u, du/d inputs, or why the reference is not

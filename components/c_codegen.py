@@ -802,6 +802,25 @@ static const char *reference(const double *par, const double *gain, const double
 """
 
 _CONTROLLER_LAW = r"""
+/* the feasible reference ref = (q*, p*, x_e*, x_e*') of Definition 1 at the inputs (2 n_m + 2 n_e values: eta_d of
+   q_d for regulation, eta*(t) of the jet for tracking), for the design checks (emc_ctrl_design); NULL, or why it is
+   not feasible (then ref is NaN) */
+const char *emc_ctrl_reference(const double *par, const double *gain, const double *in, double *ref)
+{
+    double jet[NJ];
+    const char *why;
+    int i;
+#if TRACKING
+    memcpy(jet, in + NS, sizeof jet);
+#else
+    emc_ctrl_jet(par, gain, in, jet);
+#endif
+    why = reference(par, gain, jet, ref, NULL);
+    if (why != NULL)
+        for (i = 0; i < NR; i++) ref[i] = NAN;
+    return why;
+}
+
 /* u (EMC_N_OUTPUTS = n_e) at the inputs and, if du is not NULL, du/d inputs (n_e x EMC_N_CONTROLLER_INPUTS,
    row-major: the law's Jacobian, through the reference's by the chain rule); NULL, or why the reference is not
    feasible (Definition 1) */
@@ -863,27 +882,29 @@ def _design_check_rows(design: str) -> list[tuple[str, str, int, list[tuple[str,
 
 
 def design_checks_available(desc: Description) -> bool:
-    """Whether `design_checks_c_source` serves the controllers of `desc` (components.laws.design_matrices: the
-    one-degree-of-freedom reference in closed form); emc_config.h's EMC_DESIGN_CHECKED."""
-    return desc.n_m == 1 and desc.n_e == 1 and desc.constant_mass     # n = 3 <= EMC_DESIGN_MAX_ORDER (emc_design.h)
+    """Whether `design_checks_c_source` serves the controllers of `desc`: any plant whose order n = 2 n_m + n_e is
+    at most EMC_DESIGN_MAX_ORDER = 16 (fmus/native/emc_design.h); emc_config.h's EMC_DESIGN_CHECKED."""
+    return 2 * desc.n_m + desc.n_e <= 16
 
 
 def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequence) -> str:
     """C99 of the design checks a controller FMU makes at fmi2ExitInitializationMode (strict = 0: warned,
     strict = 1: refused; components.certificates.design_checks, fmus/controller.py), for emc_controller.c:
 
-        void emc_ctrl_design(const double *par, const double *gain, const double *in, double *out)
-            the matrices of components.laws.design_matrices at the target, row-major, one after the other
+        void emc_ctrl_design(const double *par, const double *gain, const double *ref, double *out)
+            the matrices of components.laws.design_matrices_at_reference at the reference ref = (q*, p*, x_e*,
+            x_e*') that emc_ctrl_reference solves (eta_d, or eta*(t) of the jet), row-major, one after the other
         EMC_DESIGN_NAME, EMC_N_DESIGN_CHECKS, EMC_DESIGN_CHECKS[]: each check's name, test, numbers (offset
             and order of a matrix in `out`) and note, in the order of design_checks
 
     The matrices are sized from the description (n x n, n_m x n_m, n_e x n_e)."""
-    from .laws import design_law, design_matrices
+    from .laws import FAMILY, design_matrices_at_reference, law
     names = tuple(p.name for p in gain_parameters)
-    L = design_law(desc, design, names)
-    D = design_matrices(desc, design, names)
+    D = design_matrices_at_reference(desc, design, _design_gains(desc, design, names))
     E = plant_expressions(desc)
-    w = CWriter(E, [("par", "P_", desc.parameter_symbols), ("gain", "K_", L.gains), ("in", "I_", L.inputs)])
+    gains = tuple(sympy.Symbol(x, real=True) for x in names)
+    w = CWriter(E, [("par", "P_", desc.parameter_symbols), ("gain", "K_", gains),
+                    ("ref", "R_", law(desc, FAMILY[design]).reference)])
     rows = _design_check_rows(design)
     offsets: dict[str, tuple[int, int]] = {}
     values: list[sympy.Expr] = []
@@ -904,7 +925,8 @@ def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequ
         table.append(f"    {{{c_string(check)}, {test}, {at_reference}, {len(numbers)}, {{{entries}}}, {c_string(note)}}},")
     controller = re.sub(r"(\d)$", r" \1", design)
     return "\n".join([
-        w.function("ctrl_design", values, f"{controller}'s design matrices at the target (components.laws.design_matrices)"),
+        w.function("ctrl_design", values, f"{controller}'s design matrices at the reference "
+                   "(components.laws.design_matrices_at_reference)"),
         "",
         f"const char *const EMC_DESIGN_NAME = {c_string(controller)};",
         f"const int EMC_N_DESIGN_CHECKS = {len(rows)};",

@@ -26,7 +26,7 @@ R_e_bar_1_2, ... where a matrix is larger than 1 x 1). The hand-written numpy la
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import sympy
 
@@ -276,28 +276,23 @@ class DesignMatrices:
     F_d: sympy.Matrix | None
 
 
-def design_matrices(desc: Description, design: str, gain_names: tuple[str, ...]) -> DesignMatrices:
-    """The DesignMatrices of `design` for a plant with n_m = n_e = 1 and constant mass (the DesignLaw's gains
-    and reference: `design_law`)."""
-    law_of = design_law(desc, design, gain_names)
+def design_matrices_at_reference(desc: Description, design: str, gains: dict[str, sympy.Matrix]) -> DesignMatrices:
+    """The DesignMatrices of `design` for any plant (any n_m, n_e, M(q)) at the feasible reference of `law`'s
+    symbols (q*, p*, x_e*): eta_d for regulation (Propositions 1, 2), eta*(t) for tracking (Theorems 2, 3). The
+    native controller evaluates them at the reference it solves (closed form or Newton, components.c_codegen);
+    `gains`: R_e_bar, D_d and W or k_c as matrices (components.c_codegen._design_gains)."""
     family = FAMILY[design]
     E = plant_expressions(desc)
-    jet, subs = feasible_reference(desc)
     q_s, p_s, x_s, _ = _reference_symbols(desc)
-    e = desc.n_e
-    gains = {"R_e_bar": law_of.R_e_bar, "D_d": _design_gain(desc, gain_names, "D_d"),
-             "W": _design_gain(desc, gain_names, "W"), "k_c": law_of.k_c}
-    replace = {_matrix(n, e, e if n != "D_d" else desc.n_m)[0, 0]: v for n, v in gains.items()}
-    if TRACKING[design]:
-        reference: dict = {}
-    else:
-        q_d = sympy.Symbol("q_d", real=True)
-        reference = {jet[0]: q_d, jet[1]: sympy.Integer(0), jet[2]: sympy.Integer(0), jet[3]: sympy.Integer(0)}
-    target = {s: subs[r] for s, r in zip(E.eta, (*q_s, *p_s, *x_s))}
+    m, e = desc.n_m, desc.n_e
+    replace: dict = {}
+    for name, shape in (("R_e_bar", (e, e)), ("D_d", (e, m)), ("W", (e, e)), ("k_c", (e, e))):
+        if name in gains:
+            replace.update(zip(_matrix(name, *shape), sympy.Matrix(gains[name]).reshape(*shape)))
+    target = dict(zip(E.eta, (*q_s, *p_s, *x_s)))
 
     def at_target(M: sympy.Matrix) -> sympy.Matrix:
-        return M.xreplace(replace).xreplace(target).xreplace(reference)
-    m = desc.n_m
+        return M.xreplace(replace).xreplace(target)
     regulation = design in ("Proposition1", "Proposition2")
     hess_H = sympy.hessian(E.H, E.eta)
     return DesignMatrices(
@@ -308,6 +303,25 @@ def design_matrices(desc: Description, design: str, gain_names: tuple[str, ...])
         if family == "u2" else None,
         K_e=at_target(_matrix("R_e_bar", e, e) - desc.R_e),
         F_d=at_target(F_d(desc, family)) if not regulation else None)
+
+
+def design_matrices(desc: Description, design: str, gain_names: tuple[str, ...]) -> DesignMatrices:
+    """The DesignMatrices of `design` for a plant with n_m = n_e = 1 and constant mass in a DesignLaw's inputs and
+    gains (`design_law`): design_matrices_at_reference with Definition 1's closed form substituted."""
+    law_of = design_law(desc, design, gain_names)
+    jet, subs = feasible_reference(desc)
+    one = {"R_e_bar": law_of.R_e_bar, "D_d": _design_gain(desc, gain_names, "D_d"),
+           "W": _design_gain(desc, gain_names, "W"), "k_c": law_of.k_c}
+    D = design_matrices_at_reference(desc, design, {n: sympy.Matrix([[v]]) for n, v in one.items()})
+    if TRACKING[design]:
+        reference: dict = {}
+    else:
+        q_d = sympy.Symbol("q_d", real=True)
+        reference = {jet[0]: q_d, jet[1]: sympy.Integer(0), jet[2]: sympy.Integer(0), jet[3]: sympy.Integer(0)}
+
+    def closed(M: sympy.Matrix | None) -> sympy.Matrix | None:
+        return None if M is None else M.xreplace(subs).xreplace(reference)
+    return DesignMatrices(*(closed(getattr(D, f.name)) for f in fields(DesignMatrices)))
 
 
 def _design_gain(desc: Description, gain_names: tuple[str, ...], name: str) -> sympy.Expr:

@@ -4,7 +4,7 @@ The twin (fmus/controller.py) checks components.certificates.design_checks at fm
 violated condition is a warning with strict = 0 ("...; running anyway (strict = 0)") and a refusal with strict = 1.
 The native FMU decides the same conditions in C (emc_controller.c: Jacobi eigenvalues, the unit-diagonal scaled
 definiteness test, Routh-Hurwitz) from the matrices components.laws.design_matrices states. For each native
-controller (the paper's four, the examples' six) and parameter values from the paper's and the examples' numbers,
+controller (the paper's four, the examples' twelve) and parameter values from the paper's and the examples' numbers,
 kept and deliberately broken, both FMUs run through fmpy with their log captured: the statuses must be equal and
 the messages equal word for word, their numbers to the 4 digits printed (the twin's eigenvalues are numpy's, the
 native ones Jacobi's and Durand-Kerner's; a real part on the imaginary axis prints as 0 or -0).
@@ -77,6 +77,24 @@ EXAMPLE_CASES = {
                                ({"R_e_bar": 5e-9}, [f"{K_E} > 0 (Theorem 3)"]),
                                # R_m = 0: real parts -R_e_bar Gamma^2 / 2 ~ -4e-19, within rounding of the axis
                                ({"R_m": 0.0}, [HURWITZ])],
+    # n_m = n_e = 2 (Newton's reference in C); Proposition 1 is refused by both at construction (R_m = 0: the strict
+    # pH condition), Phic22 and Assumption 2 hold for any gains (hess phi = diag(2 x_e) at x_e_d > 0, Gamma invertible)
+    "LevitatedBar_Proposition2": [({}, []),
+                                  ({"R_e_bar_1_1": 2.0}, [f"{K_E} >= 0 (Proposition 2)"])],     # R_c = 2.25 Ohm
+    # R_m = 0: F_d has +-i twice (a double root: Durand-Kerner alone prints 1.87e-09, the twin -0)
+    "LevitatedBar_Theorem2": [({}, ["Assumption 3: R_m > 0", HURWITZ]),
+                              ({"R_e_bar_1_1": 2.0}, ["Assumption 3: R_m > 0", f"{K_E} >= 0 (Theorem 2)", HURWITZ])],
+    "LevitatedBar_Theorem3": [({}, []),
+                              ({"R_e_bar_2_2": 2.25}, [f"{K_E} > 0 (Theorem 3)"]),
+                              ({"D_d_1_1": 500.0, "D_d_2_2": 500.0}, [HURWITZ])],               # abscissa 18.79
+    # n_e = 2 > n_m = 1: the bias operating point
+    "TwoMagnetBall_Proposition2": [({}, []),
+                                   ({"R_e_bar_1_1": 2.0}, [f"{K_E} >= 0 (Proposition 2)"])],
+    "TwoMagnetBall_Theorem2": [({}, ["Assumption 3: R_m > 0", HURWITZ])],
+    "TwoMagnetBall_Theorem3": [({}, []),
+                               ({"D_d_1_1": 100.0, "D_d_2_1": -100.0}, []),                    # tracking.args
+                               ({"R_e_bar_2_2": 2.25}, [f"{K_E} > 0 (Theorem 3)"]),
+                               ({"D_d_1_1": 2e4}, [HURWITZ])],                                   # abscissa 1683
 }
 
 
@@ -233,10 +251,12 @@ def test_paper_controllers_check_as_their_twins(paper_controllers, fmus, name) -
 
 
 @needs_gcc
-@pytest.mark.slow                         # 6 native and 6 twin builds: ~14 CPU-s
+@pytest.mark.slow                         # 12 native and 12 twin builds: ~40 CPU-s
 @pytest.mark.parametrize("example, designs", [("solenoid", ["Proposition1", "Theorem2"]),
                                               ("parallel_plate", ["Proposition1", "Proposition2", "Theorem2",
-                                                                  "Theorem3"])])
+                                                                  "Theorem3"]),
+                                              ("levitated_bar", ["Proposition2", "Theorem2", "Theorem3"]),
+                                              ("two_magnet_ball", ["Proposition2", "Theorem2", "Theorem3"])])
 def test_example_controllers_check_as_their_twins(tmp_path: Path, example: str, designs: list[str]) -> None:
     from fmus.build import build_description
     from fmus.native_build import build_native_description_fmus
@@ -247,6 +267,37 @@ def test_example_controllers_check_as_their_twins(tmp_path: Path, example: str, 
     assert controllers == sorted(n for n in EXAMPLE_CASES if n.startswith(next(iter(natives)) + "_"))
     for name in controllers:
         _compare(natives[name], twins[name], EXAMPLE_CASES[name])
+
+
+# tests/test_described_plants.VARIABLE_MASS: M(q) = [[m + mu theta^2, 0.01 m], [0.01 m, J]], n_m = n_e = 2 (Newton)
+VARIABLE_MASS_CASES = {
+    # V = b z + kt theta^2 / 2 and Psi linear in q: hess_q H(eta_d) = diag(0, kt) (Assumption 1 asks > 0), and the
+    # z-row of hess H_d(eta_d) is zero but for its coupling to x_e: indefinite
+    "Bar_Proposition1": [({}, ["Assumption 1", "eq. (phi12): hess H_d(eta_d) > 0"])],
+    "Bar_Proposition2": [({}, []),
+                         ({"R_e_bar_1_1": 1.0}, [f"{K_E} >= 0 (Proposition 2)"]),             # R = 2 Ohm
+                         ({"mu": 50.0}, [])],                                # M(q): p* = 0 at eta_d, no effect
+    "Bar_Theorem2": [({}, []),
+                     ({"R_e_bar_1_1": 1.0}, [f"{K_E} >= 0 (Theorem 2)"])],
+    "Bar_Theorem3": [({}, []),
+                     ({"R_e_bar_2_2": 2.0}, [f"{K_E} > 0 (Theorem 3)"])],
+}
+
+
+@needs_gcc
+@pytest.mark.slow                         # 4 native and 4 twin builds: ~15 CPU-s
+def test_variable_mass_controllers_check_as_their_twins(tmp_path: Path) -> None:
+    """The design checks at Newton's reference of a plant with M(q) (its Hessians at eta_d with p* = 0)."""
+    from fmus.build import build_description
+    from fmus.native_build import build_native_description_fmus
+    from tests.test_described_plants import VARIABLE_MASS
+    toml = tmp_path / "variable_mass.toml"
+    toml.write_text(VARIABLE_MASS)
+    designs = ["Proposition1", "Proposition2", "Theorem2", "Theorem3"]
+    twins = build_description(toml, tmp_path / "twins", designs)
+    natives = build_native_description_fmus(toml, designs, tmp_path / "native")
+    for name, cases in VARIABLE_MASS_CASES.items():
+        _compare(natives[name], twins[name], cases)
 
 
 @needs_gcc

@@ -11,11 +11,12 @@
  *
  * A u that cannot be computed (a reference that is not feasible, Definition 1: q* outside the domain, no real
  * x_e*, Newton's method failing; a u that is not finite) is answered with fmi2Error (fmi2Discard in doStep) and one
- * log line, never with NaN. Where controller.c has them (EMC_DESIGN_CHECKED: n_m = n_e = 1 with constant M), the
- * design's conditions (components.certificates.design_checks: the matrices of components.laws.design_matrices at
- * the target, from controller.c's emc_ctrl_design) are checked at fmi2ExitInitializationMode as the twin checks
+ * log line, never with NaN. Where controller.c has them (EMC_DESIGN_CHECKED: n = 2 n_m + n_e <= 16), the
+ * design's conditions (components.certificates.design_checks: the matrices of components.laws.
+ * design_matrices_at_reference at the reference emc_ctrl_reference solves, from controller.c's emc_ctrl_design) are
+ * checked at fmi2ExitInitializationMode as the twin checks
  * them (fmus/controller.py): a violated one is logged as a warning with strict = 0 and refuses initialization with
- * strict = 1, with the twin's words and numbers; elsewhere strict = 1 is refused.
+ * strict = 1, with the twin's words and numbers; elsewhere (n > 16) strict = 1 is refused.
  *
  * Sizes come from emc_config.h: EMC_N_CONTROLLER_INPUTS inputs and EMC_N_OUTPUTS outputs (u, n_e of them), the law's
  * Jacobian row-major (outputs x inputs); from controller.c emc_ctrl_law (u, du/d inputs, or why the reference is not
@@ -121,11 +122,11 @@ static fmi2Status du_along(emc_instance *c, const char *function, emc_data *d, c
    ones, as the twin's); fmi2Error with the twin's reason when strict = 1 */
 static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d)
 {
-    double v[EMC_DESIGN_VALUES], u[EMC_NO], poly[EMC_DESIGN_MAX_ORDER + 1];
+    double v[EMC_DESIGN_VALUES], ref[EMC_REFERENCE_SIZE], poly[EMC_DESIGN_MAX_ORDER + 1];
     char text[900];
     size_t used = 0;
-    int k, i, failed = 0, reference = law(d, u, NULL) == NULL;
-    emc_ctrl_design(d->par, d->gain, d->in, v);
+    int k, i, failed = 0, reference = emc_ctrl_reference(d->par, d->gain, d->in, ref) == NULL;
+    emc_ctrl_design(d->par, d->gain, ref, v);                 /* at eta_d or eta*(t): NaN where not feasible */
     for (k = 0; k < EMC_N_DESIGN_CHECKS; k++) {
         const emc_design_check *check = &EMC_DESIGN_CHECKS[k];
         double number[2], shift;

@@ -44,6 +44,10 @@ const char *emc_ctrl_law(const double *par, const double *gain, const double *in
 /* the design's construction checks (R_e_bar > 0, the weight > 0, eq. pHcondition): 0, or 1 and why */
 int emc_ctrl_check(const double *par, const double *gain, char *why, size_t size);
 int emc_check_gains(const double *gain);
+/* the feasible reference (q*, p*, x_e*, x_e*') of Definition 1 at the inputs (EMC_REFERENCE_SIZE = 2 n_m + 2 n_e
+   values at most); NULL, or why it is not feasible (then NaN) */
+#define EMC_REFERENCE_SIZE (2 * EMC_N_STATES)
+const char *emc_ctrl_reference(const double *par, const double *gain, const double *in, double *ref);
 
 /* the design's conditions (components.certificates.design_checks), checked at fmi2ExitInitializationMode: warned
    with strict = 0, refused with strict = 1 (components.c_codegen.design_checks_c_source) */
@@ -70,7 +74,7 @@ typedef struct {
 } emc_design_check;
 
 #define EMC_DESIGN_VALUES (6 * EMC_N_STATES * EMC_N_STATES)       /* emc_ctrl_design's out holds at most this */
-void emc_ctrl_design(const double *par, const double *gain, const double *in, double *out);
+void emc_ctrl_design(const double *par, const double *gain, const double *ref, double *out);  /* ref: emc_ctrl_reference's */
 extern const char *const EMC_DESIGN_NAME;
 extern const int EMC_N_DESIGN_CHECKS;
 extern const emc_design_check EMC_DESIGN_CHECKS[];

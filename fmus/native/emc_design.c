@@ -158,8 +158,31 @@ int emc_hurwitz_beyond_rounding(const double *A, int n, double *shift)
     return hurwitz(c, n);
 }
 
+/* the d-th derivative of sum_i c[i] z^i (degree n) and its derivative at the complex z = (zr, zi), by Horner */
+static void derivative_at(const double *c, int n, int d, double zr, double zi, double *f, double *g)
+{
+    double a, fr = 0.0, fi = 0.0, gr = 0.0, gi = 0.0, t;
+    int i, j;
+    for (i = n; i >= d; i--) {
+        for (a = c[i], j = i; j > i - d; j--) a *= j;               /* the coefficient of z^(i-d): c[i] i!/(i-d)! */
+        t = gr * zr - gi * zi + fr;                                  /* g = g z + f, f = f z + a */
+        gi = gr * zi + gi * zr + fi;
+        gr = t;
+        t = fr * zr - fi * zi + a;
+        fi = fr * zi + fi * zr;
+        fr = t;
+    }
+    f[0] = fr, f[1] = fi, g[0] = gr, g[1] = gi;
+}
+
 /* the largest real part of a root of the monic polynomial sum_i c[i] lambda^i (degree n), by Durand-Kerner's
-   simultaneous iteration from a circle that holds every root (Fujiwara's bound); for the message only */
+   simultaneous iteration from a circle that holds every root (Fujiwara's bound); for the message only. A root of
+   multiplicity k comes out of it only to ~eps^(1/k) of the roots' size (1.9e-9 for the double +-i of the F_d of a
+   plant with two undamped mechanical coordinates, R_m = 0): a cluster of k roots within EMC_CLUSTER of the size is
+   one root of multiplicity k, a simple root of the (k-1)-th derivative, which Newton's method (at most
+   EMC_POLISH steps from the cluster's mean) finds to rounding */
+#define EMC_CLUSTER 1e-6
+#define EMC_POLISH 16
 double emc_spectral_abscissa(const double *c, int n)
 {
     double re[EMC_DN] = {0.0}, im[EMC_DN] = {0.0}, radius = 0.0, largest = -INFINITY;
@@ -201,7 +224,28 @@ double emc_spectral_abscissa(const double *c, int n)
         }
         if (!(change > 1e-15 * size)) break;
     }
-    for (k = 0; k < n; k++)
-        if (re[k] > largest) largest = re[k];
+    for (j = 0; j < n; j++) radius = j ? fmax(radius, hypot(re[j], im[j])) : hypot(re[j], im[j]);   /* the size */
+    for (k = 0; k < n; k++) {
+        double zr = 0.0, zi = 0.0, f[2], g[2], d, sr, si;
+        int count = 0;
+        for (j = 0; j < n; j++)
+            if (hypot(re[j] - re[k], im[j] - im[k]) <= EMC_CLUSTER * radius) {
+                zr += re[j];
+                zi += im[j];
+                count++;
+            }
+        zr /= count, zi /= count;
+        for (it = 0; count > 1 && it < EMC_POLISH; it++) {
+            derivative_at(c, n, count - 1, zr, zi, f, g);
+            d = g[0] * g[0] + g[1] * g[1];
+            if (!(d > 0.0)) break;
+            sr = (f[0] * g[0] + f[1] * g[1]) / d;                    /* f / g */
+            si = (f[1] * g[0] - f[0] * g[1]) / d;
+            zr -= sr, zi -= si;
+            if (!(hypot(sr, si) > 4.0 * EMC_EPS * hypot(zr, zi))) break;
+        }
+        if (!(hypot(zr - re[k], zi - im[k]) <= EMC_CLUSTER * radius)) zr = re[k];  /* Newton left the cluster */
+        if (zr > largest) largest = zr;
+    }
     return largest;
 }

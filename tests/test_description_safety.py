@@ -215,7 +215,8 @@ def test_the_worker_returns_raises_and_is_killed_at_its_limit():
     assert time.monotonic() - start < 2.5
 
 
-@pytest.mark.parametrize("signum,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize("signum,code", [pytest.param(signal.SIGTERM, 143, marks=pytest.mark.slow),
+                                         (signal.SIGINT, 130)])
 def test_a_signal_stops_plant_check_at_once(tmp_path, signum, code):
     """A description whose symbolic checks run long (an 8 x 8 M(q)): SIGTERM gives 143, Ctrl-C 130, within a
     second, and no worker is left behind."""

@@ -235,7 +235,7 @@ def _inputs(identifier, h, n):
     return 0.009 + 0.05 * np.sin(0.05 * k) + 0.01 * rng.standard_normal(n)
 
 
-@pytest.mark.parametrize("identifier, h, n", [("MEMS", 1e-6, 100), ("MEMS", 1e-8, 20),
+@pytest.mark.parametrize("identifier, h, n", [pytest.param("MEMS", 1e-6, 100, marks=pytest.mark.slow), ("MEMS", 1e-8, 20),
                                               ("Maglev", 1e-3, 200), ("Maglev", 1e-8, 20)])
 def test_plant_matches_components_reference(fmus, identifier, h, n):
     """Normalized error: |eta_i - eta_ref_i| / max(max_t |eta_ref_i|, nominal scale_i) <= 1e-6 at every
@@ -817,6 +817,7 @@ def test_docs_tables_match_the_fmus(fmus):
     assert generated == build.variables_markdown(fmus).strip(), "run: python build.py --docs"
 
 
+@pytest.mark.slow      # about 3 s: every FMU in a bare interpreter
 def test_fmus_run_without_this_project_installed(fmus, tmp_path):
     """Standalone: `fmpy simulate` with an interpreter that sees fmpy, numpy and scipy but not this
     project (python -S skips the site hooks, so the project's editable install is invisible; the

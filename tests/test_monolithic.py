@@ -33,6 +33,7 @@ def test_started_on_the_reference_the_loop_stays_on_it(ctrl, ref, horizon):
     assert np.all(normalized_deviation(r) < 1e-6), normalized_deviation(r)
 
 
+@pytest.mark.slow      # about 3 s: two runs at rtol 1e-10 and 1e-12
 def test_tolerances_are_enough():
     """The default rtol = 1e-10 agrees with rtol = 1e-12 to 1e-8 of the state's range, on the stiffest,
     least damped case (MEMS regulation, D_d = 0, electrical time constant ~1e-10 s)."""

@@ -37,7 +37,9 @@ BROKEN = {"MEMS_Proposition1": ("rbar_e", "200"), "Maglev_Theorem3": ("D_d", "50
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
-@pytest.mark.parametrize("name", ["MEMS", "Maglev", "MEMS_Proposition1", "Maglev_Theorem3",
+# The quick set keeps one plant and one controller; CI (the whole set) runs every case.
+@pytest.mark.parametrize("name", ["MEMS", pytest.param("Maglev", marks=pytest.mark.slow),
+                                  pytest.param("MEMS_Proposition1", marks=pytest.mark.slow), "Maglev_Theorem3",
                                   # n_m = n_e = 2 (Newton in C) and n_e = 2 > n_m = 1 (a bias operating point)
                                   pytest.param("levitated_bar:Theorem3", marks=pytest.mark.slow),
                                   pytest.param("two_magnet_ball:Proposition2", marks=pytest.mark.slow)])
@@ -73,7 +75,7 @@ def test_sanitizers(tmp_path: Path, name: str) -> None:
         assert run.stdout.count("the parameters violate") == 4, run.stdout[-3000:]
 
 
-@pytest.mark.parametrize("name", ["MEMS", "Maglev"])
+@pytest.mark.parametrize("name", ["MEMS", pytest.param("Maglev", marks=pytest.mark.slow)])
 def test_instances_are_independent_across_threads(tmp_path: Path, name: str) -> None:
     """tests/native/threads_host.c under ThreadSanitizer: four CS instances in four threads at once give the
     results each gives alone, bit for bit, and TSan reports no data race."""

@@ -125,6 +125,7 @@ def test_plant_fmu_starts_at_the_equilibrium_of_q_d_even_without_a_regulation_de
     assert start == pytest.approx({"q": 0.005, "p": 0.0, "x_1": math.sqrt(2 * k * b), "x_2": 0.0}, rel=1e-12)
 
 
+@pytest.mark.slow      # about 4 s: builds a plant
 def test_the_command_line_chooses_the_operating_point(tmp_path, capsys):
     out = tmp_path / "r.json"
     assert main(["plant", "check", str(BALL), "--operating-point", "bias:x_2=x_1*0.4", "--json", str(out)]) == 0

@@ -80,6 +80,7 @@ def test_report_numbers_are_those_of_the_monolithic_reference(roles, stop_time, 
             assert a.settling_time_2pct == pytest.approx(b.settling_time_2pct, rel=0.05), (name, a, b)
 
 
+@pytest.mark.slow      # about 4 s
 def test_claims_verdicts_are_those_of_the_monolithic_reference(fmu_dir):
     """The MEMS regulation claims judged on the co-simulation and on the monolithic closed loop, both
     over 10 ms taken as the horizon: D_d = 0 oscillates and decays at the same fitted rate, but

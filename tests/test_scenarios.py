@@ -112,7 +112,8 @@ def test_convergence_order(name, coupling_order, fmu_dir, references):
         assert np.all(orders >= 1.9), (errors, orders)
 
 
-@pytest.mark.parametrize("name", ["mems_regulation_Dd-1", "maglev_tracking_D-1_R2.82"])
+@pytest.mark.parametrize("name", ["mems_regulation_Dd-1",
+                                  pytest.param("maglev_tracking_D-1_R2.82", marks=pytest.mark.slow)])
 def test_libcosim_cross_check(name, fmu_dir, references):
     """libcosim runs the same files (its own SSP parser and FMI library). Its fixed-step algorithm is
     Jacobi: the plant integrates [t_n, t_n+1] with u(t_{n-1}), an effective input delay of 3h/2

@@ -122,7 +122,8 @@ def _ecos_or_skip():
         pytest.skip(f"ecos unavailable: {exc}")
 
 
-@pytest.mark.parametrize("name", ["mems_regulation_Dd-1", "maglev_tracking_D-1_R2.82"])
+@pytest.mark.parametrize("name", ["mems_regulation_Dd-1",
+                                  pytest.param("maglev_tracking_D-1_R2.82", marks=pytest.mark.slow)])
 def test_ecos_cross_check(name, fmu_dir):
     _ecos_or_skip()
     from emcosim.engine.ecos import simulate_ecos

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -46,3 +47,24 @@ def test_every_text_compiles_back_to_its_own_bytes(tmp_path: Path) -> None:
     out = subprocess.run([str(exe)], check=True, capture_output=True, cwd=tmp_path).stdout
     assert out.split(b"\0")[:-1] == [t.encode("utf-8") for t in HOSTILE]
     assert not (tmp_path / "pwned").exists()
+
+
+def test_a_description_text_stays_inside_its_c_comments(tmp_path: Path) -> None:
+    """A description's text reaches the generated C only inside block comments (components.c_codegen.c_comment):
+    a "*/" in it must not end the comment early. The payload below would compile as code if it did."""
+    import re
+
+    from fmus.native_build import build_native_description_fmus
+    example = Path(__file__).resolve().parents[1] / "examples" / "parallel_plate" / "parallel_plate.toml"
+    text = re.sub(r'(?m)^description = .*$', 'description = "*/ int pwn(void) { return 1; } /* x"',
+                  example.read_text())
+    hostile = tmp_path / "parallel_plate.toml"
+    hostile.write_text(text)
+    fmus = build_native_description_fmus(hostile, ["Proposition2"], tmp_path / "fmus")
+    assert len(fmus) == 2
+    for fmu in fmus.values():
+        with zipfile.ZipFile(fmu) as z:
+            sources = [z.read(n).decode() for n in z.namelist() if n.startswith("sources/") and n.endswith(".c")]
+        code = [re.sub(r"/\*.*?\*/", " ", source, flags=re.S) for source in sources]
+        assert any("* / int pwn(void)" in source for source in sources), fmu      # the text is there, as a comment
+        assert not any("pwn" in c for c in code), fmu                              # and nowhere as code

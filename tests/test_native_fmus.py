@@ -472,6 +472,15 @@ def test_fmpy_compiles_the_sources(native, tmp_path: Path) -> None:
     np.testing.assert_allclose(runs[0]["q"], runs[1]["q"], rtol=1e-12)
 
 
+def _with_native_plant(fmu_dir: Path, plant: Path, folder: Path) -> Path:
+    """`folder` holding the pythonfmu FMUs of `fmu_dir` with the native `plant` in place of its twin."""
+    folder.mkdir()
+    for fmu in fmu_dir.glob("*.fmu"):
+        shutil.copy2(fmu, folder / fmu.name)
+    shutil.copy2(plant, folder / plant.name)
+    return folder
+
+
 @pytest.mark.parametrize("scenario, interface, tol", [("maglev_regulation_prop2", "CoSimulation", 1e-10),
                                                       ("maglev_regulation_prop2", "ModelExchange", 1e-9),
                                                       ("mems_regulation_prop1", "CoSimulation", 1e-6)])
@@ -483,12 +492,8 @@ def test_paper_scenario_with_the_native_plant(native, fmu_dir, tmp_path: Path, s
     at the scenario's rtol)."""
     from emcosim.cli import main
     root = Path(__file__).resolve().parents[1]
-    mixed = tmp_path / "fmus"
-    mixed.mkdir()
-    for fmu in fmu_dir.glob("*.fmu"):
-        shutil.copy2(fmu, mixed / fmu.name)
     plant = "Maglev" if scenario.startswith("maglev") else "MEMS"
-    shutil.copy2(native[plant], mixed / f"{plant}.fmu")
+    mixed = _with_native_plant(fmu_dir, native[plant], tmp_path / "fmus")
     runs = []
     for folder, label in ((fmu_dir, "py"), (mixed, "native")):
         out = tmp_path / f"{label}.csv"
@@ -499,6 +504,22 @@ def test_paper_scenario_with_the_native_plant(native, fmu_dir, tmp_path: Path, s
     for name in [n for n in runs[0] if n != "time"]:
         scale = np.max(np.abs(runs[0][name])) or 1.0
         assert np.max(np.abs(runs[0][name] - runs[1][name])) <= tol * scale, name
+
+
+@pytest.mark.parametrize("interface", ["CoSimulation", "ModelExchange"])
+def test_the_engine_shows_a_native_plants_message(native, fmu_dir, tmp_path: Path, capsys, interface: str) -> None:
+    """A native FMU's refusal reaches the user as its text: the framework sends each message formatted, with no
+    variadic arguments (which the engine's ctypes logger cannot read), so a negative mass is named, not "%s: %s"."""
+    from emcosim.cli import main
+    root = Path(__file__).resolve().parents[1]
+    mixed = _with_native_plant(fmu_dir, native["Maglev"], tmp_path / "fmus")
+    out = tmp_path / "run.csv"
+    assert main(["run", str(root / "scenarios" / "maglev_regulation_prop2"), "--fmu-dir", str(mixed),
+                 "--interface-type", interface, "--set", "plant.m=-1", "--no-progress", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "Maglev: fmi2" in err and "parameter m = -1 violates m > 0" in err, err
+    assert "%s" not in err, err
+    assert not out.exists()
 
 
 PAPER_SCENARIOS = [c.name for c in paper_scenarios.cases()]

@@ -71,6 +71,8 @@ def test_sanitizers(tmp_path: Path, name: str) -> None:
     assert run.returncode == 0, run.stderr[-3000:]
     assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr
     assert "0 mismatches" in run.stderr
+    if not controller:                             # messages are plain text, '%' doubled (emc_fmi2.c, log_to)
+        assert f"{fmu.stem}: fmi2Instantiate: GUID {{50%n%s}} does not match" in run.stdout, run.stdout[-3000:]
     if controller:                                 # the refusal and the warning of the violated condition
         assert run.stdout.count("the parameters violate") == 4, run.stdout[-3000:]
 

@@ -114,8 +114,8 @@ def _fmpy_logger_given_back():
 
 
 class Logged:
-    """An FMU2Slave with its log captured through fmpy's proxy, which formats the native FMU's variadic
-    arguments (the framework logs "%s: %s")."""
+    """An FMU2Slave with its log captured through fmpy's proxy, which formats each message as a C host does
+    (the framework sends plain text with '%' doubled, emc_fmi2.c log_to)."""
 
     def __init__(self, path: Path):
         md = read_model_description(str(path))

@@ -69,14 +69,33 @@ int emc_all_finite(const double *v, size_t n)
     return 1;
 }
 
-static void vlog(emc_instance *c, fmi2Status status, const char *category, const char *format, va_list args)
+/* The message goes to the host formatted, "<model identifier>: <text>", with no variadic arguments and every
+ * '%' doubled: FMI 2.0 makes the message a printf format, so a C host that formats it (fmusim, the FMU
+ * Compliance Checker) prints the text, and a host whose ctypes logger cannot read variadic arguments (fmpy,
+ * the engine's emcosim.engine.fmi.instantiate) gets the text too instead of a bare "%s: %s". The pythonfmu
+ * FMUs' loader (fmus/emcosim_fmu_loader.c, log_text) sends its messages the same way. */
+static void log_to(fmi2CallbackLogger logger, fmi2ComponentEnvironment environment, const char *name,
+                   fmi2Status status, const char *category, const char *format, va_list args)
 {
     char text[EMC_MESSAGE];
+    char escaped[2 * EMC_MESSAGE];
+    size_t i, n = 0;
+    int head = snprintf(text, sizeof text, "%s: ", EMC_MODEL_IDENTIFIER);
+    if (head < 0 || (size_t)head >= sizeof text) head = 0;
+    vsnprintf(text + head, sizeof text - (size_t)head, format, args);
+    for (i = 0; text[i] != '\0'; i++) {
+        if (text[i] == '%') escaped[n++] = '%';
+        escaped[n++] = text[i];
+    }
+    escaped[n] = '\0';
+    logger(environment, name, status, category, escaped);
+}
+
+static void vlog(emc_instance *c, fmi2Status status, const char *category, const char *format, va_list args)
+{
     if (c == NULL || c->functions.logger == NULL || (status == fmi2OK && !c->logging))
         return;
-    vsnprintf(text, sizeof text, format, args);
-    c->functions.logger(c->functions.componentEnvironment, c->name, status, category, "%s: %s",
-                        EMC_MODEL_IDENTIFIER, text);
+    log_to(c->functions.logger, c->functions.componentEnvironment, c->name, status, category, format, args);
 }
 
 fmi2Status emc_fail(emc_instance *c, fmi2Status status, const char *format, ...)
@@ -141,6 +160,19 @@ static void reset(emc_common *d)
     d->in_use = 0;
 }
 
+/* fmi2Instantiate's refusal: one message if the host gave a logger, and no instance. */
+static fmi2Component refuse(fmi2CallbackLogger logger, fmi2ComponentEnvironment environment, const char *name,
+                            const char *format, ...)
+{
+    va_list args;
+    if (logger != NULL) {
+        va_start(args, format);
+        log_to(logger, environment, name, fmi2Error, "logStatusError", format, args);
+        va_end(args);
+    }
+    return NULL;
+}
+
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn)
@@ -152,20 +184,19 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     const size_t slot = (EMC_DATA_SIZE + sizeof(double) - 1) / sizeof(double) * sizeof(double);
     (void)fmuResourceLocation;
     (void)visible;
-#define REFUSE(...) do { if (logger) logger(environment, name, fmi2Error, "logStatusError", __VA_ARGS__); return NULL; } while (0)
+#define REFUSE(...) return refuse(logger, environment, name, __VA_ARGS__)
     if (functions == NULL) return NULL;
     if (instanceName == NULL || instanceName[0] == '\0')
-        REFUSE("%s: fmi2Instantiate: the instance name is empty", EMC_MODEL_IDENTIFIER);
+        REFUSE("fmi2Instantiate: the instance name is empty");
     if (fmuType != fmi2ModelExchange && fmuType != fmi2CoSimulation)
-        REFUSE("%s: fmi2Instantiate: fmuType %d is neither fmi2ModelExchange (0) nor fmi2CoSimulation (1)",
-               EMC_MODEL_IDENTIFIER, (int)fmuType);
+        REFUSE("fmi2Instantiate: fmuType %d is neither fmi2ModelExchange (0) nor fmi2CoSimulation (1)",
+               (int)fmuType);
     if (fmuGUID == NULL || strcmp(fmuGUID, EMC_GUID) != 0)
-        REFUSE("%s: fmi2Instantiate: GUID %s does not match the FMU's %s", EMC_MODEL_IDENTIFIER,
-               fmuGUID ? fmuGUID : "(null)", EMC_GUID);
+        REFUSE("fmi2Instantiate: GUID %s does not match the FMU's %s", fmuGUID ? fmuGUID : "(null)", EMC_GUID);
     /* the only allocation of an instance's life: the instance, its data, a scratch copy and the pool */
     c = (emc_instance *)calloc(1, sizeof *c + (2 + EMC_STATE_POOL) * slot);
     if (c == NULL)
-        REFUSE("%s: fmi2Instantiate: out of memory", EMC_MODEL_IDENTIFIER);
+        REFUSE("fmi2Instantiate: out of memory");
 #undef REFUSE
     c->magic = EMC_MAGIC;
     c->interface = fmuType;

@@ -60,6 +60,8 @@ static void model_exchange(void)
 
     CHECK(fmi2Instantiate("me", fmi2ModelExchange, EMC_GUID, "", NULL, fmi2False, fmi2False) == NULL);
     CHECK(fmi2Instantiate("me", fmi2ModelExchange, "{wrong}", "", &callbacks, fmi2False, fmi2False) == NULL);
+    /* a '%' in a message's text reaches this (formatting) logger as a literal '%' (emc_fmi2.c, log_to) */
+    CHECK(fmi2Instantiate("me", fmi2ModelExchange, "{50%n%s}", "", &callbacks, fmi2False, fmi2False) == NULL);
     CHECK(fmi2Instantiate("me", (fmi2Type)7, EMC_GUID, "", &callbacks, fmi2False, fmi2False) == NULL);
     CHECK(fmi2Instantiate(NULL, fmi2ModelExchange, EMC_GUID, "", &callbacks, fmi2False, fmi2False) == NULL);
     c = fmi2Instantiate("me", fmi2ModelExchange, EMC_GUID, NULL, &callbacks, fmi2False, fmi2True);

@@ -19,6 +19,7 @@ SYMBOLIC_SECONDS each (components.bounded.time_limit; past it the sampled test d
 """
 from __future__ import annotations
 
+import hashlib
 import io
 import math
 import re
@@ -222,6 +223,9 @@ class Description:
     electrical energy."""
     """The actuator's range |u_i| <= u_max_i, in the units of u (optional; `plant check` compares the inputs the
     designs command at the start with it)."""
+    sha256: str = ""
+    """The SHA-256 of the file's text (UTF-8): what generated source says it was made from (components.source_text:
+    never the file's path or text)."""
 
     @property
     def n_m(self) -> int:
@@ -322,7 +326,8 @@ class _Parser:
             **model, q_symbols=self.q_sym, p_symbols=tuple(self.symbols[v.name] for v in variables["p"]),
             x_e_symbols=self.x_sym, u_symbols=tuple(self.symbols[v.name] for v in variables["u"]),
             parameter_symbols=self.par_sym, controller=controller, notes=tuple(self.notes),
-            gains=self.gain_matrices, gain_parameters=self.gain_parameters, operating_point=self.rule)
+            gains=self.gain_matrices, gain_parameters=self.gain_parameters, operating_point=self.rule,
+            sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
 
     def variables(self, table: Any) -> dict[str, Any]:
         if not isinstance(table, dict):

@@ -1,0 +1,158 @@
+"""Issue 40, "Generated C is defined for every input": the native FMUs (fmus/native, components.c_codegen) and their
+pythonfmu twins refuse, with one log line, what they cannot compute, and every loop ends.
+
+Truths: the FMI 2.0 statuses a C host sees (tests/fixtures/c_calls.c in a subprocess: a crash is a signal, not a
+failed assertion), a wall-clock limit (a loop that never ends is a timeout), the values double arithmetic gives
+(0 x inf = NaN, 1e308 + 1e308 = inf), and the pythonfmu twin called in-process.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+
+from .c_host import CALLS_SOURCE, compile_c_host, extract, run_calls
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.fixture(scope="module")
+def c_calls(tmp_path_factory) -> Path:
+    exe = tmp_path_factory.mktemp("c_calls") / "c_calls"
+    reason = compile_c_host(exe, CALLS_SOURCE)
+    if reason:
+        pytest.skip(reason)
+    return exe
+
+
+def _statuses(lines: list[list[str]]) -> list[tuple[str, int]]:
+    return [(words[0], int(words[1])) for words in lines if len(words) > 1 and words[0] not in ("inst", "instme")]
+
+
+def _errors(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if "logStatusError" in line or "logStatusDiscard" in line]
+
+
+def twin_slaves(toml: Path, designs: list[str]) -> dict:
+    """The pythonfmu twins of a description's FMUs (fmus.models.device_slave_classes, what `emcosim plant build`
+    packs), instantiated in-process: model identifier -> slave."""
+    from components import codegen
+    from components.description import load
+    from fmus.build import load_device_module
+    from fmus.models import device_slave_classes
+
+    desc = load(toml)
+    with tempfile.TemporaryDirectory() as tmp:
+        module = Path(tmp) / f"{desc.name.lower()}_model.py"
+        module.write_text(codegen.module_source(desc, toml.name))
+        classes = device_slave_classes(load_device_module(module), designs,
+                                       model=hashlib.sha256(toml.read_bytes()).hexdigest())
+        return {name: cls(instance_name="twin", resources=tmp) for name, cls in classes.items()}
+
+
+def _initialized(slave, interface: int = 1, start: float = 0.0):
+    assert slave.fmi2_set_interface(interface)[0] == OK
+    assert slave.fmi2_setup_experiment(0, 0.0, start, 0, 0.0)[0] == OK
+    assert slave.fmi2_enter_initialization_mode()[0] == OK
+    status = slave.fmi2_exit_initialization_mode()
+    assert status[0] == OK, status
+    return slave
+
+
+# ---- item 2: the least-energy operating point at a jet where every cost is NaN ----------------------------------
+# The two-magnet ball with a spring and damping under the least-energy point (tests/test_native_fmus._damped_ball),
+# with the legal k = 4: at q* = 5e-324, q*' = q*'' = -1.7e308 the force F* = m q*'' + d_m q*' + ... is finite
+# (-1e308) but w = x_e^2 = -F* / A_11 overflows to inf on the lower coil, whose cost Psi_22(q*) = q*/k is 0:
+# 0 x inf = NaN. On main no branch was chosen and the C read BRANCH_SIZE[-1] (a made-up u with fmi2OK) and called
+# DSTATE[-1] (SIGSEGV).
+JET = {"q_star": "5e-324", "q_star_dot": "-1.7e308", "q_star_ddot": "-1.7e308"}
+
+
+def _ball(folder: Path) -> Path:
+    from tests.test_native_fmus import _damped_ball
+
+    toml = folder / "ball.toml"
+    toml.write_text(_damped_ball('Psi = [["(c - q)/k", "0"], ["0", "q/k"]]').replace("k   = [0.64042,", "k   = [4.0,"))
+    return toml
+
+
+@pytest.fixture(scope="module")
+def least_ball(tmp_path_factory) -> tuple[Path, Path]:
+    """(the description, its native Theorem 2 controller) of the damped ball with the least-energy point, k = 4."""
+    from fmus.native_build import build_native_description_fmus
+
+    folder = tmp_path_factory.mktemp("least_ball")
+    toml = _ball(folder)
+    paths = build_native_description_fmus(toml, ["Theorem2"], folder / "fmus")
+    return toml, paths["TwoMagnetBall_Theorem2"]
+
+
+def test_a_jet_with_no_comparable_cost_is_refused_not_a_wild_call(c_calls, least_ball, tmp_path) -> None:
+    """fmi2GetReal, fmi2GetDirectionalDerivative and fmi2GetRealOutputDerivatives answer fmi2Error, doStep fmi2Discard,
+    each with one log line naming the overflow; the host process ends normally (on main: SIGSEGV), and the same
+    instance answers at an ordinary jet again."""
+    folder, vr = extract(least_ball[1], tmp_path)
+    u_1, q_star = str(vr["u_1"]), str(vr["q_star"])
+    calls = ["inst", "init"]
+    for name, value in JET.items():
+        calls += ["setr", str(vr[name]), value]
+    calls += ["getr", u_1, "jac", u_1, q_star, "1.0", "dget", u_1, "1", "step", "0", "0.01"]
+    calls += ["setr", q_star, "0.005", "setr", str(vr["q_star_dot"]), "0", "setr", str(vr["q_star_ddot"]), "0",
+              "getr", u_1, "jac", u_1, q_star, "1.0"]
+    run, lines = run_calls(c_calls, folder, calls)
+    assert run.returncode == 0, (run.returncode, run.stderr[-2000:])
+    statuses = [s for _, s in _statuses(lines)]
+    assert statuses == [OK] * 4 + [ERROR, ERROR, ERROR, DISCARD] + [OK] * 5, lines
+    errors = _errors(run.stderr)
+    assert len(errors) == 4 and all("is not finite at this jet (an overflow)" in e for e in errors), run.stderr
+    assert all(math.isfinite(float(words[2])) for words in lines[-2:])
+
+
+def test_the_twin_refuses_the_same_jet(least_ball) -> None:
+    """The pythonfmu twin of the same law (components.operating_point.solve through the generated device) refuses the
+    jet for the same reason: a branch's cost is not finite; u is never NaN with fmi2OK."""
+    slave = _initialized(twin_slaves(least_ball[0], ["Theorem2"])["TwoMagnetBall_Theorem2"])
+    vr = {v.name: i for i, v in enumerate(slave.variables)}
+    assert slave.fmi2_set_real([vr[k] for k in JET], [float(v) for v in JET.values()])[0] == OK
+    status, values, message = slave.fmi2_get_real([vr["u_1"]])
+    assert status == ERROR, (status, values, message)
+    u, reason = slave.compute_u_vector()                        # what the twin logs beside the refusal
+    assert "the cost of the ports (1,) is not finite" in reason and all(math.isnan(v) for v in u), reason
+    status, _, message = slave.fmi2_get_directional_derivative([vr["u_1"]], [vr["q_star"]], [1.0])
+    assert status == ERROR, message
+
+
+def test_operating_point_solve_refuses_a_cost_that_is_not_finite() -> None:
+    """components.operating_point.solve (the twin's choice, which the C copies): a vertex whose cost is 0 x inf is no
+    cost at all; on main it was kept, and min() over NaN chose by the order of the vertices."""
+    from components.operating_point import NoOperatingPoint, Rule, solve
+
+    A = np.array([[-0.125, 0.125]])
+    psi = np.array([1e-300, 0.0])
+    with pytest.raises(NoOperatingPoint, match="not finite"):
+        solve(Rule(given=False), A, np.array([1.7e308]), psi, 1.0)
+    with pytest.raises(NoOperatingPoint, match="not finite"):
+        solve(Rule(given=False), A, np.array([math.inf]), psi, 1.0)
+    x, branch = solve(Rule(given=False), A, np.array([1.0]), np.array([1.0, 2.0]), 1.0)
+    assert branch == (1,) and x[1] == pytest.approx(math.sqrt(8.0))
+
+
+def test_generated_least_reference_reads_its_tables_at_checked_indices(least_ball) -> None:
+    """Every read of BRANCH_SIZE, STATE and DSTATE at the chosen branch follows the check that one was chosen
+    (components.c_codegen._LEAST_REFERENCE)."""
+    from components.c_codegen import _LEAST_REFERENCE
+
+    check = _LEAST_REFERENCE.index("if (chosen < 0 || chosen >= NT) return NO_BRANCH;")
+    for use in ("BRANCH_SIZE[chosen]", "DSTATE[chosen]"):
+        assert _LEAST_REFERENCE.index(use) > check
+    assert "if (!isfinite(cost[v])) return OVERFLOW;" in _LEAST_REFERENCE
+    assert read_model_description(str(least_ball[1])).generationTool.startswith("emcosim native C generator")
+

@@ -156,3 +156,83 @@ def test_generated_least_reference_reads_its_tables_at_checked_indices(least_bal
     assert "if (!isfinite(cost[v])) return OVERFLOW;" in _LEAST_REFERENCE
     assert read_model_description(str(least_ball[1])).generationTool.startswith("emcosim native C generator")
 
+
+# ---- item 3: the boundary-distance bisection ends (a boundary nearer than the least subnormal) ----------------------
+# The levitated bar with the domain c - z -+ 1e100 l^2 theta > 0 and the legal c = 1e-100, l = 1e100: along theta the
+# boundary lies at 1e-100 / 1e300 = 1e-400, below the least subnormal 4.9e-324. Bisecting [0, 1e-12] ends at
+# [0, 4.9e-324], whose midpoint rounds to 0: on main `while (high - low > 1e-3 * high)` never ended, in C at
+# fmi2ExitInitializationMode and in components.plant_step._boundary_distance at the twin's initialization.
+BAR_PARAMETERS = {"c": 1e-100, "l": 1e100, "z_0": 0.0, "theta_0": 0.0}
+LIMIT = 60.0                   # s: far beyond the ~2 s each child needs on a loaded machine
+
+
+@pytest.fixture(scope="module")
+def subnormal_bar(tmp_path_factory) -> tuple[Path, Path]:
+    """(the description, its native plant FMU) of the levitated bar with the theta-boundary scaled by 1e100 l^2."""
+    from fmus.native_build import build_native_description
+
+    folder = tmp_path_factory.mktemp("subnormal_bar")
+    text = (EXAMPLES / "levitated_bar" / "levitated_bar.toml").read_text()
+    old = 'domain = ["c - z - l*theta > 0", "c - z + l*theta > 0"]'
+    assert old in text
+    toml = folder / "bar.toml"
+    toml.write_text(text.replace(old, 'domain = ["c - z - 1e100*l*l*theta > 0", "c - z + 1e100*l*l*theta > 0"]'))
+    return toml, build_native_description(toml, folder / "fmus")
+
+
+def _child(code: str) -> list[float]:
+    """Run `code` in a child Python under LIMIT seconds (a loop that never ends fails the test, it does not hang it):
+    the numbers it printed on its last line."""
+    import subprocess
+    import sys
+
+    try:
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=LIMIT,
+                             cwd=Path(__file__).resolve().parent.parent)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"did not end within {LIMIT:g} s: {code}")
+    assert run.returncode == 0, run.stderr[-2000:]
+    return [float(x) for x in run.stdout.split()]
+
+
+def test_initialization_ends_where_the_boundary_is_below_the_least_subnormal(subnormal_bar, tmp_path) -> None:
+    """The native plant initializes (CS) and answers its nominals (ME) within the time limit, the twin's
+    components.plant_step.nominal_scale likewise, and the two agree (the theta axis: no boundary distance above
+    0, the fallback nominal 1, as for an axis with no boundary)."""
+    toml, fmu = subnormal_bar
+    native = _child(f"""
+from fmpy import read_model_description, extract
+from fmpy.fmi2 import FMU2Model, FMU2Slave
+md = read_model_description({str(fmu)!r}); folder = extract({str(fmu)!r}, {str(tmp_path / 'x')!r})
+vr = {{v.name: v.valueReference for v in md.modelVariables}}
+values = {BAR_PARAMETERS!r}
+for kind in (FMU2Slave, FMU2Model):
+    f = kind(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier, instanceName='b')
+    f.instantiate(); f.setReal([vr[k] for k in values], list(values.values()))
+    f.setupExperiment(startTime=0.0); f.enterInitializationMode(); f.exitInitializationMode()
+import ctypes
+nominals = (ctypes.c_double * 6)()
+assert f.getNominalsOfContinuousStates(nominals, 6) == 0
+print(*[repr(float(x)) for x in nominals])
+""")
+    twin = _child(f"""
+from pathlib import Path
+from emcosim.devices import registry
+from components.plant_step import nominal_scale
+device = registry.load(Path({str(toml)!r}))[2]
+print(*[repr(float(x)) for x in nominal_scale(device.plant(c=1e-100, l=1e100))])
+""")
+    assert len(native) == len(twin) == 6
+    np.testing.assert_allclose(native, twin, rtol=1e-12)
+    assert native[0] == pytest.approx(1e-100, rel=1e-3) and native[1] == 1.0      # z: the boundary c; theta: none
+
+
+def test_boundary_bisection_is_bounded_by_a_stated_count() -> None:
+    """components.plant_step.BISECTIONS and emc_plant.c's EMC_BISECTIONS are one bound, derived from double's
+    exponent range: from 1e-12 (> 2^-40) to the least subnormal 2^-1074 by halving, then 2^-10 < 1e-3."""
+    from components import plant_step
+
+    source = (Path(plant_step.__file__).parent.parent / "fmus" / "native" / "emc_plant.c").read_text()
+    assert f"#define EMC_BISECTIONS {plant_step.BISECTIONS} " in source
+    assert plant_step.BISECTIONS >= (1074 - 40) + 10
+    assert 1e-12 > 2.0 ** -40 and 2.0 ** -1074 == 5e-324 and 2.0 ** -10 < 1e-3

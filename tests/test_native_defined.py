@@ -236,3 +236,57 @@ def test_boundary_bisection_is_bounded_by_a_stated_count() -> None:
     assert f"#define EMC_BISECTIONS {plant_step.BISECTIONS} " in source
     assert plant_step.BISECTIONS >= (1074 - 40) + 10
     assert 1e-12 > 2.0 ** -40 and 2.0 ** -1074 == 5e-324 and 2.0 ** -10 < 1e-3
+
+
+# ---- item 10: a communication point + step that overflows ----------------------------------------------------
+# fmi2DoStep(c, 1e308, 1e308, ...): both finite, the step > 0, but the end time 1e308 + 1e308 = inf. On main every
+# native FMU (the framework, emc_fmi2.c) and every pythonfmu FMU (fmus/slave.py) answered fmi2OK and took the time
+# to +inf (fmi2GetRealStatus(fmi2LastSuccessfulTime) then inf, no step possible after it).
+@pytest.fixture(scope="module")
+def native_reference(tmp_path_factory) -> Path:
+    from fmus.native_build import build_native_reference
+    return build_native_reference(tmp_path_factory.mktemp("native_reference"))
+
+
+def _step_at_the_top(fmu: Path, folder: Path) -> tuple[int, float]:
+    """(fmi2DoStep's status, fmi2LastSuccessfulTime after it) of doStep(1e308, 1e308) after an experiment started at
+    1e308 (fmpy, in-process: the framework's answer, not a crash, is under test)."""
+    from fmpy import extract as unzip
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(fmu))
+    f = FMU2Slave(guid=md.guid, unzipDirectory=unzip(str(fmu), str(folder)),
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="top")
+    f.instantiate()
+    f.setupExperiment(startTime=1e308)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    try:
+        f.doStep(currentCommunicationPoint=1e308, communicationStepSize=1e308)
+        status = OK
+    except FMICallException as exc:
+        status = exc.status
+    time = f.getRealStatus(2)                       # fmi2LastSuccessfulTime
+    f.terminate()
+    f.freeInstance()
+    return status, time
+
+
+def test_a_step_whose_end_time_overflows_is_refused_natively(native_reference, least_ball, subnormal_bar,
+                                                               tmp_path) -> None:
+    """The Reference, a controller and a plant (every kind of the framework): fmi2Error, and the FMU's time stays
+    1e308 (on main fmi2OK and +inf)."""
+    for k, fmu in enumerate((native_reference, least_ball[1], subnormal_bar[1])):
+        assert _step_at_the_top(fmu, tmp_path / str(k)) == (ERROR, 1e308), fmu.name
+
+
+def test_a_step_whose_end_time_overflows_is_refused_by_the_twins(least_ball) -> None:
+    """fmus/slave.py (every pythonfmu FMU): the plant and the controller twins refuse doStep(1e308, 1e308) with
+    fmi2Error and keep their time."""
+    for name, slave in twin_slaves(least_ball[0], ["Theorem2"]).items():
+        _initialized(slave, start=1e308)
+        status, message = slave.fmi2_do_step(1e308, 1e308)
+        assert status == ERROR and "overflows" in message, (name, status, message)
+        assert slave.time == 1e308
+    assert slave.fmi2_do_step(1e308, 1e300)[0] == OK              # the controller: 1e308 + 1e300 is finite

@@ -290,3 +290,100 @@ def test_a_step_whose_end_time_overflows_is_refused_by_the_twins(least_ball) -> 
         assert status == ERROR and "overflows" in message, (name, status, message)
         assert slave.time == 1e308
     assert slave.fmi2_do_step(1e308, 1e300)[0] == OK              # the controller: 1e308 + 1e300 is finite
+
+
+# ---- item 14 (the FMU half): a deserialized state is checked as initialization checks -----------------------------
+# A serialized native state is the model's data behind the GUID: anyone can write bytes that pass the framework's
+# magic, mode and finiteness checks. On main a plant state's rtol was only checked to be finite (initialization
+# takes 1e-14 <= rtol <= 1e-2), and a controller state with strict = 1 was not checked against the design's
+# conditions (initialization refuses them with strict = 1).
+def _native_slave(fmu: Path, folder: Path, name: str, integers: dict | None = None, reals: dict | None = None):
+    """An initialized CS instance of `fmu`, unzipped once into `folder` (never over a loaded binary)."""
+    from fmpy import extract as unzip
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    if not folder.exists():
+        unzip(str(fmu), str(folder))
+    f = FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+    f.instantiate()
+    for k, v in (integers or {}).items():
+        f.setInteger([vr[k]], [v])
+    for k, v in (reals or {}).items():
+        f.setReal([vr[k]], [v])
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    return f
+
+
+def _serialized(f) -> bytes:
+    state = f.getFMUstate()
+    data = bytes(f.serializeFMUstate(state))
+    f.freeFMUstate(state)
+    return data
+
+
+def _deserialize_status(f, data: bytes) -> int:
+    from fmpy.fmi1 import FMICallException
+
+    try:
+        f.freeFMUstate(f.deSerializeFMUstate(bytes(data)))
+    except FMICallException as exc:
+        return exc.status
+    return OK
+
+
+def test_a_deserialized_plant_state_with_an_rtol_out_of_range_is_refused(subnormal_bar, tmp_path) -> None:
+    """The native plant (CS): a serialized state whose rtol bytes say 0.5 is refused with fmi2Error (main: fmi2OK),
+    the same state with its own rtol is taken; the twin refuses the same state content (fmus/plant.py)."""
+    import struct
+
+    rtol = 1.2345678e-7                                  # a pattern found once in the bytes
+    f = _native_slave(subnormal_bar[1], tmp_path / "n", "plant", reals={"rtol": rtol})
+    data = _serialized(f)
+    assert data.count(struct.pack("<d", rtol)) == 1
+    assert _deserialize_status(f, data) == OK
+    for bad in (0.5, 1e-15):
+        assert _deserialize_status(f, data.replace(struct.pack("<d", rtol), struct.pack("<d", bad))) == ERROR, bad
+    f.terminate()
+    f.freeInstance()
+
+    slave = _initialized(twin_slaves(subnormal_bar[0], [])["LevitatedBar"])
+    status, state, _ = slave.fmi2_get_fmu_state()
+    assert status == OK
+    state["values"]["rtol"] = 0.5
+    status, _, message = slave.fmi2_deserialize_fmu_state(slave.fmi2_serialize_fmu_state(state)[1])
+    assert status == ERROR and "rtol = 0.5" in message, message
+
+
+def test_a_deserialized_controller_state_with_strict_checks_the_design_again(least_ball, tmp_path) -> None:
+    """The native controller: a state with strict = 1 whose gains violate Theorem 2's K_e >= 0 (R_e_bar_1_1 = 1 <
+    R_c = 2.25), made from the bytes of a strict = 0 state, is refused at fmi2DeSerializeFMUstate with the design's
+    reason (main: fmi2OK); the honest strict = 0 and strict = 1 states are taken. The twin refuses the same
+    state when it is set (its parameters differ: it initializes again, strict = 1 refuses)."""
+    fmu = least_ball[1]
+    weak = _native_slave(fmu, tmp_path / "x", "weak", {"strict": 0}, {"R_e_bar_1_1": 1.0})
+    honest = [_native_slave(fmu, tmp_path / "x", f"s{k}", {"strict": k}) for k in (0, 1)]
+    zero, one = (_serialized(f) for f in honest)
+    flipped = [i for i in range(len(zero)) if zero[i] != one[i]]
+    assert len(flipped) == 1                              # strict's low byte: nothing else differs
+    crafted = bytearray(_serialized(weak))
+    crafted[flipped[0]] = one[flipped[0]]
+    assert _deserialize_status(honest[1], zero) == OK and _deserialize_status(honest[1], one) == OK
+    assert _deserialize_status(honest[1], bytes(crafted)) == ERROR
+    for f in (weak, *honest):
+        f.terminate()
+        f.freeInstance()
+
+    twins = [_initialized(twin_slaves(least_ball[0], ["Theorem2"])["TwoMagnetBall_Theorem2"]) for _ in range(2)]
+    vr = {v.name: i for i, v in enumerate(twins[0].variables)}
+    status, state, _ = twins[0].fmi2_get_fmu_state()
+    state["values"].update({"strict": 1, "R_e_bar_1_1": 1.0})
+    status, state, message = twins[1].fmi2_deserialize_fmu_state(twins[0].fmi2_serialize_fmu_state(state)[1])
+    assert status == OK, message
+    status, message = twins[1].fmi2_set_fmu_state(state)
+    assert status == ERROR and "K_e = R_e_bar - R_e >= 0" in message, message
+    assert twins[1].fmi2_get_real([vr["R_e_bar_1_1"]])[1] == [1000.0]       # it keeps its own state

@@ -316,6 +316,9 @@ fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_comm
         if (bad >= 0)
             return emc_fail(c, fmi2Error, "%s: the FMU state's parameter %s = %g violates %s %s", function,
                             EMC_PARAMETER_NAMES[bad], m->par[bad], EMC_PARAMETER_NAMES[bad], EMC_PARAMETER_CONDITIONS[bad]);
+        if (emc_interface(c) == fmi2CoSimulation && !(m->rtol >= EMC_RTOL_MIN && m->rtol <= EMC_RTOL_MAX))
+            return emc_fail(c, fmi2Error, "%s: the FMU state's parameter rtol = %g violates 1e-14 <= rtol <= 1e-2",
+                            function, m->rtol);           /* as fmi2ExitInitializationMode (issue 40) */
         if (domain_problem(m->par, m->x, why, sizeof why))
             return emc_fail(c, fmi2Error, "%s: the FMU state's state is not admissible: %s", function, why);
         nominals(m->par, scale);

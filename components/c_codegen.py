@@ -407,6 +407,7 @@ _CONTROLLER_GLUE = r"""
 
 #define OUTSIDE "q* is outside the domain"
 #define INFEASIBLE "no real x_e* balances the force the reference needs"
+#define NOT_FINITE "the reference (q*, p*, x_e*, x_e*') or its Jacobian overflows at these inputs"
 /* the smallest eigenvalue of the symmetric part of an n x n matrix (numpy's eigvalsh), by cyclic Jacobi rotations
    (at most JACOBI_SWEEPS sweeps) */
 static double min_eigenvalue(int n, const double *M)
@@ -454,6 +455,14 @@ static int all_zero(int n, const double *v)
     int i;
     for (i = 0; i < n; i++)
         if (v[i] != 0.0) return 0;
+    return 1;
+}
+
+static int all_finite(int n, const double *v)
+{
+    int i;
+    for (i = 0; i < n; i++)
+        if (!isfinite(v[i])) return 0;
     return 1;
 }
 
@@ -720,6 +729,8 @@ static const char *reference(const double *par, const double *gain, const double
 """
 
 _LEAST_REFERENCE = r"""
+#define OVERFLOW "the force balance A(q*) w = -F* or a branch's cost is not finite at this jet (an overflow)"
+#define NO_BRANCH "no branch of the operating point holds at this jet"
 /* the determinant of an n x n matrix (numpy's det: LU with partial pivoting) */
 static double determinant(int n, const double *M)
 {
@@ -754,6 +765,7 @@ static const char *reference(const double *par, const double *gain, const double
     int tied[NE], i, k, v, found = 0, count = 0, chosen = -1;
     emc_ctrl_select(par, gain, jet, s);
     if (!(s[0] > 0.0)) return OUTSIDE;
+    if (!all_finite(NM + NM * NE + NM + NE, s + 1)) return OVERFLOW;   /* F*, A, b, the costs: operating_point.solve */
     if (!TRACKING && all_zero(NM, s + 1)) {        /* grad V(q_d) = 0: x_e_d = 0 (EMPlant.equilibrium) */
         memset(ref, 0, sizeof(double) * NR);
         for (i = 0; i < NM; i++) ref[i] = jet[i];
@@ -774,6 +786,7 @@ static const char *reference(const double *par, const double *gain, const double
         if (i < NM) continue;
         cost[v] = 0.0;
         for (i = 0; i < NM; i++) cost[v] += psi[BRANCH_PORTS[v][i]] * w[i];
+        if (!isfinite(cost[v])) return OVERFLOW;      /* 0 x inf or an overflow: no cost to compare (issue 40) */
         if (!found || cost[v] < best) best = cost[v];
         found = 1;
     }
@@ -797,6 +810,7 @@ static const char *reference(const double *par, const double *gain, const double
             chosen = v;
             STATE[v](par, gain, jet, out);
         }
+    if (chosen < 0 || chosen >= NT) return NO_BRANCH;   /* the tables are read at a checked index only */
     memcpy(ref, out + BRANCH_SIZE[chosen], sizeof(double) * NR);
 #if TRACKING
     if (dref != NULL) DSTATE[chosen](par, gain, jet, dref);
@@ -808,6 +822,15 @@ static const char *reference(const double *par, const double *gain, const double
 """
 
 _CONTROLLER_LAW = r"""
+/* the reference of every kind (closed form, Newton, least operating point) checked to be finite, with its Jacobian
+   when asked: an overflow inside it is refused (NOT_FINITE), never passed on to u */
+static const char *finite_reference(const double *par, const double *gain, const double *jet, double *ref, double *dref)
+{
+    const char *why = reference(par, gain, jet, ref, dref);
+    if (why != NULL) return why;
+    if (!all_finite(NR, ref) || (dref != NULL && !all_finite(NR * NJ, dref))) return NOT_FINITE;
+    return NULL;
+}
 /* the feasible reference ref = (q*, p*, x_e*, x_e*') of Definition 1 at the inputs (2 n_m + 2 n_e values: eta_d of
    q_d for regulation, eta*(t) of the jet for tracking), for the design checks (emc_ctrl_design); NULL, or why it is
    not feasible (then ref is NaN) */
@@ -821,7 +844,7 @@ const char *emc_ctrl_reference(const double *par, const double *gain, const doub
 #else
     emc_ctrl_jet(par, gain, in, jet);
 #endif
-    why = reference(par, gain, jet, ref, NULL);
+    why = finite_reference(par, gain, jet, ref, NULL);
     if (why != NULL)
         for (i = 0; i < NR; i++) ref[i] = NAN;
     return why;
@@ -840,7 +863,7 @@ const char *emc_ctrl_law(const double *par, const double *gain, const double *in
 #else
     emc_ctrl_jet(par, gain, in, jet);
 #endif
-    why = reference(par, gain, jet, ref, (TRACKING && du != NULL) ? dref : NULL);
+    why = finite_reference(par, gain, jet, ref, (TRACKING && du != NULL) ? dref : NULL);
     if (why != NULL) return why;
     emc_ctrl_u(par, gain, in, ref, u);
     if (du == NULL) return NULL;

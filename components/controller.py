@@ -138,7 +138,7 @@ class Controller:
         x, v = inputs, directions
         if len(x) != len(v):
             raise ValueError(f"{self.name}: {len(x)} inputs but {len(v)} directions")
-        if not math.isfinite(sum(x) + sum(v)):
+        if not all(math.isfinite(a) for a in (*x, *v)):          # each: a sum of finite values may overflow
             raise ValueError(f"{self.name}: inputs {list(x)} or directions {list(v)} are not finite")
         ratio = 0.0
         for xi, vi in zip(x, v):

@@ -24,6 +24,7 @@ Every function takes complex jets (complex-step derivatives): the branch is chos
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from itertools import combinations
 from typing import Any, Sequence
@@ -84,6 +85,9 @@ def solve(rule: Rule, A: np.ndarray, b: np.ndarray, psi: np.ndarray, sign: float
     the solved roots (x_e_sign). The branch names the solved (energized) ports; it changes where x_e is not smooth."""
     n_m, n_e = A.shape
     if rule.kind in LEAST:
+        if not all(np.all(np.isfinite(v)) for v in (A, b, psi)):      # an overflow in F*, A(q*) or the costs
+            raise NoOperatingPoint(f"the force balance A(q) w = {np.real(b).tolist()} or the costs "
+                                   f"{np.real(psi).tolist()} are not finite (an overflow)")
         vertices = []
         for B in combinations(range(n_e), n_m):
             AB = np.real(A[:, B])
@@ -92,7 +96,10 @@ def solve(rule: Rule, A: np.ndarray, b: np.ndarray, psi: np.ndarray, sign: float
             wB = np.linalg.solve(A[:, B], b)
             if not np.all(np.real(wB) >= 0):
                 continue
-            vertices.append((float(np.real(np.asarray(psi)[list(B)] @ wB)), B, wB))
+            cost = float(np.real(np.asarray(psi)[list(B)] @ wB))
+            if not math.isfinite(cost):                               # 0 x inf: no cost to compare (issue 40)
+                raise NoOperatingPoint(f"the cost of the ports {B} is not finite (w = {np.real(wB).tolist()})")
+            vertices.append((cost, B, wB))
         if not vertices:
             raise NoOperatingPoint(f"no w = x_e^2 >= 0 with n_m = {n_m} energized ports solves A(q) w = {np.real(b).tolist()}")
         best = min(c for c, _, _ in vertices)

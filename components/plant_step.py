@@ -60,6 +60,11 @@ LAYER_SEPARATION = 100.0    # alpha T_m from which the layer counts as fast for 
 LAYER_TOL = 0.1             # the terms the layer neglects must stay below this fraction of the error tolerance
 LAYER_GONE = 50.0           # alpha h above which exp(-alpha h) < 2e-22: nothing of the layer is left
 MAX_SUBSTEPS = 100_000
+# halvings of _boundary_distance at the most: a boundary below 1e-12 ~ 2^-40 is approached from [0, 1e-12] by
+# halving, 1034 halvings down to the least subnormal 2^-1074, then 10 more resolve 1e-3 relative (2^-10); the
+# halving also ends where no double lies strictly between the bounds (issue 40: a boundary below the least
+# subnormal looped forever). emc_plant.c's EMC_BISECTIONS.
+BISECTIONS = 1100
 
 
 def step_factor(e: float) -> tuple[float, float]:
@@ -127,7 +132,8 @@ def nominal_scale(plant: EMPlant) -> np.ndarray:
 def _boundary_distance(plant: EMPlant, direction: np.ndarray) -> float:
     """The distance t > 0 from eta = 0 along `direction` (a unit vector in q) to the boundary of the
     admissible domain (domain_margin <= 0 or not finite), to 1e-3 relative; inf if none up to 1e6; nan if
-    eta = 0 is itself outside."""
+    eta = 0 is itself outside. At most 19 decades and BISECTIONS halvings; 0 for a boundary nearer than the
+    least subnormal."""
     eta = np.zeros(plant.n)
 
     def inside(t: float) -> bool:
@@ -142,8 +148,12 @@ def _boundary_distance(plant: EMPlant, direction: np.ndarray) -> float:
         if high >= 1e6:
             return math.inf
         low, high = high, high * 10.0
-    while high - low > 1e-3 * high:
+    for _ in range(BISECTIONS):
+        if not high - low > 1e-3 * high:
+            break
         mid = 0.5 * (low + high)
+        if not low < mid < high:                 # no double between the bounds: resolved to one ulp
+            break
         low, high = (mid, high) if inside(mid) else (low, mid)
     return low
 

@@ -353,7 +353,7 @@ class PlantSlave(EMSlave):
         initialized, none before; the state (q, p, x_e) finite and inside the domain of eq. (open-loop
         elecmech) for the state's parameters (components: check_state, as fmi2ExitInitializationMode checks
         the initial state); the proposed substep h_next finite and >= 0 (0: none yet); the input at the end
-        of the last step (u, u', n_e numbers each) finite or none."""
+        of the last step (u, u', n_e numbers each) finite or none; the parameter rtol in RTOL_RANGE."""
         internal = state["internal"]
         if not state["initialized"]:
             return "" if internal == {} else "it is not initialized but holds an integrator state"
@@ -361,6 +361,9 @@ class PlantSlave(EMSlave):
             return "its integrator state is incomplete (eta, h_next, u_end)"
         eta, h_next, u_end = internal["eta"], internal["h_next"], internal["u_end"]
         n, n_e = len(self.state_specs), len(self.input_names)
+        rtol = state["values"]["rtol"]                 # as at initialization (PlantStepper), issue 40
+        if not RTOL_RANGE[0] <= rtol <= RTOL_RANGE[1]:
+            return f"its parameter rtol = {rtol!r} violates 1e-14 <= rtol <= 1e-2"
         if not _finite_numbers(eta, n):
             return f"its state (q, p, x_e) = {eta!r} is not {'three' if n == 3 else n} finite numbers"
         if not (_finite_numbers([h_next], 1) and h_next >= 0):

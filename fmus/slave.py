@@ -267,8 +267,9 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
     def fmi2_do_step(self, current_time: float, step_size: float) -> tuple[int, str]:
         """fmi2OK after a successful step; fmi2Discard when the adapter refuses the step (it logged why;
         the state stays at the start of the step); fmi2Error for a call in the wrong state, a step that is
-        not finite and positive, or a currentCommunicationPoint that is not the FMU's time (issue 26,
-        item 8: the time jumped before; within COMMUNICATION_POINT_TOLERANCE it is the FMU's time)."""
+        not finite and positive, an end time that overflows (issue 40), or a currentCommunicationPoint that is
+        not the FMU's time (issue 26, item 8: the time jumped before; within COMMUNICATION_POINT_TOLERANCE it is
+        the FMU's time)."""
         where = f"{self.model_identifier}: fmi2DoStep"
         if self.interface != CO_SIMULATION:
             return ERROR, self.cs_only("fmi2DoStep")
@@ -279,6 +280,9 @@ class EMSlave(StateFunctions, DerivativeFunctions, ModelExchangeFunctions, Fmi2S
         if not (math.isfinite(current_time) and math.isfinite(step_size) and step_size > 0):
             return ERROR, (f"{where}: currentCommunicationPoint = {current_time!r}, communicationStepSize = "
                            f"{step_size!r}: both must be finite and the step > 0")
+        if not math.isfinite(current_time + step_size):              # the time would become inf (issue 40)
+            return ERROR, (f"{where}: currentCommunicationPoint + communicationStepSize = {current_time!r} + "
+                           f"{step_size!r} overflows")
         if current_time != self.time and not self._at_time(current_time, step_size):
             return ERROR, (f"{where}: currentCommunicationPoint = {current_time!r} s is not this FMU's time "
                            f"{self.time!r} s (the end of its last step, its start time or the time of the FMU "

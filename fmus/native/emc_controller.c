@@ -119,8 +119,10 @@ static fmi2Status du_along(emc_instance *c, const char *function, emc_data *d, c
 /* ---- the design's conditions (components.certificates.design_checks) ------------------------------- */
 #if EMC_DESIGN_CHECKED                      /* controller.c has emc_ctrl_design (emc_config.h) */
 /* the design's conditions at the inputs: fmi2OK when they hold or strict = 0 (a warning names the violated
-   ones, as the twin's); fmi2Error with the twin's reason when strict = 1 */
-static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d)
+   ones, as the twin's); fmi2Error with the twin's reason when strict = 1. With at_reference = 0 (a saved or
+   deserialized FMU state) the conditions at the reference eta*(t) of the jet are left out: they held at
+   initialization, at the jet of that time, and a state the FMU saved later must be restorable. */
+static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d, int at_reference)
 {
     double v[EMC_DESIGN_VALUES], ref[EMC_REFERENCE_SIZE], poly[EMC_DESIGN_MAX_ORDER + 1];
     char text[900];
@@ -132,7 +134,7 @@ static fmi2Status check_conditions(emc_instance *c, const char *function, const 
         double number[2], shift;
         const char *note = check->note;
         int verdict = EMC_HOLDS;
-        if (check->at_reference && EMC_TRACKING && !reference) continue;    /* not applicable: no reference */
+        if (check->at_reference && EMC_TRACKING && (!reference || !at_reference)) continue;  /* not applicable */
         for (i = 0; i < check->count; i++) {
             const double *A = v + check->number[i].offset;
             int n = check->number[i].order;
@@ -171,8 +173,9 @@ static fmi2Status check_conditions(emc_instance *c, const char *function, const 
 }
 #else
 /* no emc_ctrl_design for this controller: strict = 1 is refused (use the pythonfmu twin) */
-static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d)
+static fmi2Status check_conditions(emc_instance *c, const char *function, const emc_data *d, int at_reference)
 {
+    (void)at_reference;
     if (d->strict == 1)
         return emc_fail(c, fmi2Error, "%s: strict = 1 (the design checks of components.certificates) is not provided "
                         "by this native controller; use its pythonfmu twin", function);
@@ -243,7 +246,7 @@ fmi2Status emc_exit_initialization(emc_instance *c, emc_common *s)
     if (d->strict != 0 && d->strict != 1)
         return emc_fail(c, fmi2Error, "fmi2ExitInitializationMode: parameter strict = %d violates strict in {0, 1}", d->strict);
     if (check_design(c, "fmi2ExitInitializationMode", d) != fmi2OK) return fmi2Error;
-    return check_conditions(c, "fmi2ExitInitializationMode", d);
+    return check_conditions(c, "fmi2ExitInitializationMode", d, 1);
 }
 
 fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_common *s)
@@ -255,6 +258,8 @@ fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_comm
         || !emc_all_finite(d->in, EMC_NI) || !emc_all_finite(d->rate, EMC_NI))
         return emc_fail(c, fmi2Error, "%s: the FMU state holds values that are not finite", function);
     if ((s->mode & M_INITIALIZED) && check_design(c, function, d) != fmi2OK) return fmi2Error;
+    /* strict = 1: the state's parameters must meet the design's conditions as at initialization (issue 40) */
+    if ((s->mode & M_INITIALIZED) && d->strict == 1 && check_conditions(c, function, d, 0) != fmi2OK) return fmi2Error;
     return fmi2OK;
 }
 

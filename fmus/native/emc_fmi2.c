@@ -569,6 +569,9 @@ fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoin
     if (!(isfinite(currentCommunicationPoint) && isfinite(communicationStepSize) && communicationStepSize > 0.0))
         return emc_fail(c, fmi2Error, "fmi2DoStep: currentCommunicationPoint = %g, communicationStepSize = %g: both must "
                         "be finite and the step > 0", currentCommunicationPoint, communicationStepSize);
+    if (!isfinite(currentCommunicationPoint + communicationStepSize))      /* the time would become inf */
+        return emc_fail(c, fmi2Error, "fmi2DoStep: currentCommunicationPoint + communicationStepSize = %.17g + %.17g "
+                        "overflows", currentCommunicationPoint, communicationStepSize);
     scale = fmax(fmax(fabs(c->d->time), fabs(currentCommunicationPoint)), fmax(fabs(c->d->start_time), communicationStepSize));
     if (fabs(currentCommunicationPoint - c->d->time) > EMC_TIME_TOLERANCE * scale)
         return emc_fail(c, fmi2Error, "fmi2DoStep: currentCommunicationPoint = %.17g s is not this FMU's time %.17g s",

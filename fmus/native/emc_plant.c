@@ -159,18 +159,24 @@ static int inside_along(const double *par, int i, double t)
 }
 
 /* components.plant_step._boundary_distance along sign e_i: to 1e-3 relative, inf beyond 1e6, nan if q = 0 is
-   outside (at most 19 decades and 11 bisections) */
+   outside. At most 19 decades (1e-12 to 1e6) and EMC_BISECTIONS halvings: a boundary below 1e-12 ~ 2^-40 is
+   approached from [0, 1e-12] by halving, 1034 halvings down to the least subnormal 2^-1074, then 10 more resolve
+   1e-3 relative (2^-10); 1100 bounds both. The halving also ends where no double lies strictly between low and
+   high (a boundary below the least subnormal: on main it looped forever there, issue 40). */
+#define EMC_BISECTIONS 1100                /* components.plant_step.BISECTIONS */
 static double boundary_distance(const double *par, int i, double sign)
 {
     double low = 0.0, high = 1e-12;
+    int k;
     if (!inside_along(par, i, 0.0)) return NAN;
     while (inside_along(par, i, sign * high)) {
         if (high >= 1e6) return INFINITY;
         low = high;
         high *= 10.0;
     }
-    while (high - low > 1e-3 * high) {
+    for (k = 0; k < EMC_BISECTIONS && high - low > 1e-3 * high; k++) {
         double mid = 0.5 * (low + high);
+        if (!(mid > low && mid < high)) break;
         if (inside_along(par, i, sign * mid)) low = mid; else high = mid;
     }
     return low;
@@ -310,6 +316,9 @@ fmi2Status emc_check_saved(emc_instance *c, const char *function, const emc_comm
         if (bad >= 0)
             return emc_fail(c, fmi2Error, "%s: the FMU state's parameter %s = %g violates %s %s", function,
                             EMC_PARAMETER_NAMES[bad], m->par[bad], EMC_PARAMETER_NAMES[bad], EMC_PARAMETER_CONDITIONS[bad]);
+        if (emc_interface(c) == fmi2CoSimulation && !(m->rtol >= EMC_RTOL_MIN && m->rtol <= EMC_RTOL_MAX))
+            return emc_fail(c, fmi2Error, "%s: the FMU state's parameter rtol = %g violates 1e-14 <= rtol <= 1e-2",
+                            function, m->rtol);           /* as fmi2ExitInitializationMode (issue 40) */
         if (domain_problem(m->par, m->x, why, sizeof why))
             return emc_fail(c, fmi2Error, "%s: the FMU state's state is not admissible: %s", function, why);
         nominals(m->par, scale);

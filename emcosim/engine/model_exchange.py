@@ -37,6 +37,7 @@ from scipy.optimize import brentq
 
 from . import binding, stopping
 from . import instances as instances_
+from . import options as options_
 from .errors import Interrupted, ScenarioError, SimulationError
 from .fmi import FMICallException
 from .instances import last_message
@@ -113,6 +114,10 @@ DEFAULT_SOLVER = "LSODA"
 DEFAULT_TOLERANCE = 1e-6          # the solver's rtol when the run asks for neither rtol nor a tolerance
 MAX_EVENT_ITERATIONS = 100        # fmi2NewDiscreteStates rounds of one event
 CHUNK = 256                       # grid points taken from the dense output at once (memory stays bounded)
+# solver steps in a row that do not move time on before a run ends as stuck (issue 40: LSODA's step underflowed
+# to h = 0 at a horizon of 1e-160 s and it stepped on the spot up to max_steps, for hours). With the horizon at
+# least options.min_horizon no solve was seen to need one; the bound holds whatever a solver does
+MAX_STALLED_STEPS = 100
 
 
 class RunLimit(SimulationError):
@@ -473,6 +478,7 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
     z = system.indicators(t, xi) if system.with_indicators else None
     above = None if z is None else (z > 0).tolist()
     every = max(1, n_rows // 200)
+    still = 0                                                   # solver steps in a row that left time where it was
     while t < t_stop:
         bound = t_stop if next_event is None else min(t_stop, next_event)
         solver = solver_class(system.rhs, t, xi, bound, rtol=rtol, atol=rtol, jac=jac)
@@ -489,6 +495,11 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
                                solver=system.statistics.solver, rtol=rtol, limit=limit, t=solver.t, t_stop=t_stop)
             stopping.check()                                    # besides every evaluation (ode.System.set_point)
             t_new, x_new = solver.t, solver.y
+            still = still + 1 if not t_new > t else 0
+            if still > MAX_STALLED_STEPS:
+                raise SimulationError(f"Model Exchange: {system.statistics.solver} is stuck at t = {t:.9g} s: "
+                                      f"{still} steps in a row did not move time on (the last of "
+                                      f"{float(solver.step_size or 0.0):.3g} s)")
             event_at = None
             if z is not None:
                 z_new = system.indicators(t_new, x_new)
@@ -506,7 +517,7 @@ def _integrate(system: System, result: Result, planned: Experiment, solver_class
             if event_at is None and system.completed_step(t_new, x_new):
                 event_at = t_new
             if event_at is not None:
-                stalled = stalled + 1 if event_at <= t + 1e-12 * max(1.0, abs(t)) else 0
+                stalled = stalled + 1 if event_at <= t + options_.TIME_RESOLUTION * max(1.0, abs(t)) else 0
                 if stalled > MAX_EVENT_ITERATIONS:
                     raise SimulationError(f"Model Exchange: the events at t = {t:.9g} s do not end: {stalled} events "
                                           "in a row without the time moving on (an event indicator that its FMU's "
@@ -566,7 +577,7 @@ def _locate(system: System, dense, t_a: float, t_b: float, i: int) -> float:
     old = g(t_a) > 0
     if (g(t_b) > 0) == old:
         return t_b
-    xtol = 1e-12 * max(1.0, abs(t_b))
+    xtol = options_.TIME_RESOLUTION * max(1.0, abs(t_b))
     t = brentq(g, t_a, t_b, xtol=xtol, rtol=4 * np.finfo(float).eps)
     step = xtol
     while t < t_b and (g(t) > 0) == old:                 # brentq's zero may lie on the old side

@@ -6,6 +6,7 @@ the same way everywhere, before any FMU is loaded.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 
 from .errors import LimitError, OptionError
@@ -20,6 +21,11 @@ SOLVERS = ("LSODA", "BDF", "Radau")                      # scipy's, for Model Ex
 # leave the start time (issue 31)
 MIN_RTOL = 1e-13
 ME_SOLVES = 100            # a Model Exchange run with a tolerance solves down to tolerance / ME_SOLVES
+# the engine's resolution of time [s] at |t| <= 1 s (relative beyond): events are located to it and two events
+# closer than it are one (model_exchange.py). A run spans at least this (`min_horizon`, issue 40): below it the
+# solvers' step powers underflow (LSODA at a horizon of 1e-160 s steps with h = 0 for ever, implicit coupling
+# divides by h * h = 0 at 1e-200 s)
+TIME_RESOLUTION = 1e-12
 
 
 @dataclass(frozen=True)
@@ -57,6 +63,10 @@ class RunOptions:
     solver_steps: bool = False
 
     def __post_init__(self) -> None:
+        for name, kind in _NUMBERS.items():
+            value = getattr(self, name)
+            if _real(value) and (kind is float or isinstance(value, numbers.Integral)):
+                object.__setattr__(self, name, kind(value))     # numpy's floats and ints as Python's (issue 40)
         check(self)
 
     @property
@@ -79,20 +89,34 @@ max_steps=100000000, interface_type='CoSimulation', rtol=None, solver=None, solv
     return replace(options, **settings) if settings else options
 
 
+# the numeric fields and the Python type each is kept as: any real number (numpy's included) but a bool (a
+# True is no 1 s) is taken; max_steps stays an int when it is one
+_NUMBERS = {"stop_time": float, "step_size": float, "tolerance": float, "max_step": float, "rtol": float,
+            "coupling_order": int, "max_steps": int}
+
+
+def _real(value) -> bool:
+    """A real number that is no bool (Python's or numpy's: numbers.Real knows numpy's, and no numpy bool)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 def _shown(value) -> str:
     return f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else repr(value)
 
 
 def _positive(value: float | None, option: str) -> None:
-    if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+    if value is not None and not (_real(value) and math.isfinite(value) and value > 0):
         raise OptionError("{%s} {value}: must be a positive number" % option, option, value=_shown(value))
 
 
 def check(options: RunOptions) -> None:
     """An OptionError for settings that cannot make a run, whatever the scenario."""
+    if options.stop_time is not None and not (_real(options.stop_time) and math.isfinite(options.stop_time)):
+        raise OptionError("{stop_time} {value}: must be a finite number (seconds)", "stop_time",
+                          value=_shown(options.stop_time))
     _positive(options.step_size, "step_size")
     _positive(options.max_step, "max_step")
-    if options.tolerance is not None and not (isinstance(options.tolerance, (int, float))
+    if options.tolerance is not None and not (_real(options.tolerance)
                                               and math.isfinite(options.tolerance) and 0 < options.tolerance < 1):
         raise OptionError("{tolerance} {value}: must be a number between 0 and 1 (a relative error)", "tolerance",
                           value=_shown(options.tolerance))
@@ -111,7 +135,7 @@ def check(options: RunOptions) -> None:
         raise OptionError("{coupling_order} {value} sets the derivatives of explicit coupling; {coupling} implicit "
                           "passes none (it sets its inputs' polynomials itself, from the end of each step)",
                           "coupling_order", "coupling", value=order)
-    if not (isinstance(options.max_steps, (int, float)) and options.max_steps > 0):
+    if not (_real(options.max_steps) and options.max_steps > 0):
         raise OptionError("{max_steps} {value}: must be a positive number", "max_steps", value=_shown(options.max_steps))
     if options.interface_type not in INTERFACE_TYPES:
         raise OptionError("{interface_type} {value!r}: must be one of " + ", ".join(INTERFACE_TYPES),
@@ -122,7 +146,7 @@ def check(options: RunOptions) -> None:
         raise OptionError("{solver} chooses the integrator of a Model Exchange run; give {interface_type} "
                           "ModelExchange, or no solver", "solver", "interface_type")
     if options.rtol is not None:
-        if not (isinstance(options.rtol, (int, float)) and math.isfinite(options.rtol) and 0 < options.rtol < 1):
+        if not (_real(options.rtol) and math.isfinite(options.rtol) and 0 < options.rtol < 1):
             raise OptionError("{rtol} {value}: must be a number between 0 and 1", "rtol", value=_shown(options.rtol))
         if options.rtol < MIN_RTOL:
             raise OptionError("{rtol} {value}: below %g, the smallest relative tolerance the solvers resolve in "
@@ -152,6 +176,11 @@ def check(options: RunOptions) -> None:
                                   name, "interface_type", "tolerance", "solver")
 
 
+def min_horizon(t0: float, t_stop: float) -> float:
+    """The shortest horizon [s] of a run from t0 to about t_stop: TIME_RESOLUTION, relative to |t| beyond 1 s."""
+    return TIME_RESOLUTION * max(1.0, abs(t0), abs(t_stop))
+
+
 @dataclass(frozen=True)
 class Experiment:
     """The horizon and steps of one run of one scenario: start and stop time [s], the communication
@@ -176,6 +205,12 @@ def experiment(scenario, options: RunOptions) -> Experiment:
     if not (math.isfinite(t_stop) and t_stop > t0):
         raise OptionError("{where}: {stop_time} {t_stop} must be after the start time {t0}", "stop_time",
                           where=where, t_stop=t_stop, t0=t0)
+    least = min_horizon(t0, t_stop)
+    if t_stop - t0 < least:
+        raise OptionError("{where}: {stop_time} {t_stop:g} s is {span:.3g} s after the start time {t0:g} s; a run "
+                          "spans at least {least:.3g} s (the engine's resolution of time: %g s, relative to |t| "
+                          "beyond 1 s)" % TIME_RESOLUTION, "stop_time", where=where, t_stop=t_stop, span=t_stop - t0,
+                          t0=t0, least=least)
     if not (math.isfinite(h) and h > 0):
         raise OptionError("{where}: {step_size} {h} must be positive", "step_size", where=where, h=h)
     max_step = None

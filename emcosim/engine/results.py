@@ -7,6 +7,7 @@ last row in memory, so a run of any length needs a bounded amount of memory; rea
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 from typing import Any
 
@@ -41,18 +42,33 @@ class Result:
         self.model_exchange: Any = None        # model_exchange.Statistics of a Model Exchange run
         self.units: dict[str, str] = {}        # unit of each column ('' for none), where the caller knows them
         self.coupling_error: Any = None        # doubling.ErrorEstimate of a fixed-step Co-Simulation run
+        self.nonfinite: tuple[float, str] | None = None   # the first value recorded that is not finite: (t, column)
+        self.verdict: Any = None               # verdict.Verdict: whether the result is accepted (emcosim.run sets it)
         if sink is not None:
             sink.start(self.columns, self.notes)
 
     def append(self, t: float, values: list) -> None:
         stopping.check()                       # Ctrl-C / SIGTERM: stop here, between FMU calls
         row = [t, *values]
+        if self.nonfinite is None and not math.isfinite(sum(row)):     # a NaN or inf makes the sum one
+            self._note_nonfinite(row)
         if self.sink is not None:
             self.sink.write(row)
         else:
             self.rows.append(row)
         self.last = row
         self.n_rows += 1
+
+    def _note_nonfinite(self, row: list) -> None:
+        for name, v in zip(["time", *self.columns], row):
+            if not math.isfinite(v):
+                self.nonfinite = (row[0], name)
+                return
+
+    @property
+    def accepted(self) -> bool | None:
+        """Whether the result is accepted (engine/verdict.py), None where no verdict was made."""
+        return None if self.verdict is None else self.verdict.accepted
 
     def __len__(self) -> int:
         return self.n_rows if self.sink is not None else len(self.rows)
@@ -94,8 +110,7 @@ class Result:
         result = cls([name for name in data if name != "time"])
         columns = [data["time"]] + [data[name] for name in result.columns]
         for row in zip(*columns):
-            result.rows.append([float(v) for v in row])
-        result.n_rows = len(result.rows)
+            result.append(float(row[0]), [float(v) for v in row[1:]])
         return result
 
     def write_csv(self, path: str | Path, note: str | None = None) -> None:

@@ -30,7 +30,7 @@ import difflib
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
 
-from .engine.errors import ResultNotAccepted, ScenarioError
+from .engine.errors import ResultNotAccepted, ScenarioError, SimulationError
 from .engine.options import RunOptions
 from .engine.plan import default_record
 from .engine.results import Result
@@ -164,18 +164,52 @@ def run(scenario: Scenario | str | Path, options: RunOptions | None = None, *,
     scenario = _scenario(scenario)
     horizon = experiment(scenario, options).stop_time
     record = None if record is None else list(record)             # None: the engine's default_record
-    result = simulate(scenario, start_values=dict(start_values or {}), record=record, progress=progress, sink=sink,
-                      **asdict(options))
+    try:
+        result = simulate(scenario, start_values=dict(start_values or {}), record=record, progress=progress,
+                          sink=sink, **asdict(options))
+    except SimulationError as exc:                                # the rows so far: their sidecar says what ran
+        if exc.result is not None:
+            try:
+                exc.result.units = units_of(scenario, exc.result.columns)
+            except ScenarioError:                                 # the run's own error comes first
+                pass
+            _describe(sink, scenario, options, start_values, record, exc.result)
+        raise
     result.units = units_of(scenario, result.columns)
     result.verdict = verdict.judge(result, threshold, horizon)
-    if sink is not None and result.coupling_error is not None:
-        sink.comment = f"emcosim: {result.coupling_error.summary()}"
+    _describe(sink, scenario, options, start_values, record, result)
     if not result.verdict.accepted:
         if accept == "raise":
             raise ResultNotAccepted(result.verdict, result)
         result.warnings.append(result.verdict.summary())
         warnings.warn(ResultNotAcceptedWarning(f"{scenario.name}: {result.verdict.describe()}"), stacklevel=2)
     return result
+
+
+def _describe(sink, scenario: Scenario, options: RunOptions, start_values, record, result: Result) -> None:
+    """What the results file's sidecar says beside the rows (engine.outputs.sidecar): the scenario, the options,
+    the start values set, the versions, and what the result says (Result.metadata)."""
+    if sink is None:
+        return
+    from dataclasses import asdict
+
+    sink.meta.update(scenario={"name": scenario.name, "path": str(scenario.path)}, options=asdict(options),
+                     start_values={k: str(v) for k, v in (start_values or {}).items()}, record=record,
+                     versions=versions(), **result.metadata())
+
+
+def versions() -> dict[str, str]:
+    """The versions of emcosim, Python and the libraries a run's numbers depend on."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in ("emcosim", "fmpy", "numpy", "scipy"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "unknown"
+    return out
 
 
 def units_of(scenario: Scenario, names: Iterable[str]) -> dict[str, str]:

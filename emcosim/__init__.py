@@ -12,6 +12,8 @@ __version__ = "0.1.0"
 
 from .api import (  # noqa: E402 - after __version__, which the build reads
     Result,
+    ResultNotAccepted,
+    ResultNotAcceptedWarning,
     RunOptions,
     Scenario,
     build_plant,
@@ -30,6 +32,7 @@ from .api import (  # noqa: E402 - after __version__, which the build reads
     write_scenario,
 )
 
-__all__ = ["__version__", "Result", "RunOptions", "Scenario", "build_plant", "certify", "check_plant",
+__all__ = ["__version__", "Result", "ResultNotAccepted", "ResultNotAcceptedWarning",
+           "RunOptions", "Scenario", "build_plant", "certify", "check_plant",
            "default_record", "figure", "find_scenario", "load_scenario", "paper_fmu_dir", "run", "scenario_dirs",
            "scenario_names", "sweep", "units_of", "write_scenario"]

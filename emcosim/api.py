@@ -30,13 +30,15 @@ import difflib
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
 
-from .engine.errors import ScenarioError
+from .engine.errors import ResultNotAccepted, ScenarioError, SimulationError
 from .engine.options import RunOptions
 from .engine.plan import default_record
 from .engine.results import Result
 from .engine.ssd import SSD_NAME, Scenario
+from .engine.verdict import ResultNotAcceptedWarning
 
-__all__ = ["RunOptions", "Result", "Scenario", "scenario_dirs", "scenario_names", "find_scenario", "load_scenario",
+__all__ = ["ResultNotAccepted", "ResultNotAcceptedWarning",
+           "RunOptions", "Result", "Scenario", "scenario_dirs", "scenario_names", "find_scenario", "load_scenario",
            "default_record", "run", "figure", "paper_fmu_dir", "check_plant", "build_plant", "write_scenario", "write_folder",
            "certify", "sweep", "units_of"]
 
@@ -126,7 +128,8 @@ def _scenario(scenario: Scenario | str | Path) -> Scenario:
 
 def run(scenario: Scenario | str | Path, options: RunOptions | None = None, *,
         start_values: Mapping[str, str | float] | None = None, record: Sequence[str] | None = None,
-        progress: Callable[[float], None] | None = None, sink=None) -> Result:
+        progress: Callable[[float], None] | None = None, sink=None, error_threshold: float | None = None,
+        accept: str = "raise") -> Result:
     """Run a scenario (a Scenario, or its name or path) once with `options` (RunOptions: stop time, step,
     tolerance, coupling, interface type, solver ...; None: the scenario's own). `start_values` override
     parameters ("component.variable" -> value); `record` names the variables to record (default:
@@ -134,23 +137,79 @@ def run(scenario: Scenario | str | Path, options: RunOptions | None = None, *,
     The result's rows: `result.time`, `result["plant.q"]` (numpy arrays), `result.to_pandas()` (a DataFrame
     indexed by time, the units in `df.attrs["units"]`).
 
+    The result is judged as the command line judges it (engine/verdict.py, `result.verdict`): not accepted
+    when a fixed-step run's estimated coupling error exceeds `error_threshold` of a recorded variable's range
+    (default 1e-2, the command line's --error-threshold), a value is not finite or the horizon is not
+    reached. Then `run` raises `ResultNotAccepted`, whose `.result` holds the rows (the command line exits 5);
+    `accept="warn"` returns the result anyway, marked (`result.accepted` is False, the reason in
+    `result.warnings`), with a `ResultNotAcceptedWarning`.
+
     >>> r = run("maglev_regulation_prop2", RunOptions(stop_time=0.01))
     >>> r.columns
     ['controller.u', 'plant.q', 'plant.p', 'plant.x_e', 'plant.H']
     >>> r.to_pandas().attrs["units"]["plant.q"]
     'm'
     """
+    import warnings
     from dataclasses import asdict
 
+    from .engine import verdict
+    from .engine.errors import ResultNotAccepted
     from .engine.master import simulate
+    from .engine.options import experiment
 
     options = RunOptions() if options is None else options
+    threshold = verdict.check_threshold(error_threshold)          # checked before anything is read
+    verdict.check_accept(accept)
     scenario = _scenario(scenario)
+    horizon = experiment(scenario, options).stop_time
     record = None if record is None else list(record)             # None: the engine's default_record
-    result = simulate(scenario, start_values=dict(start_values or {}), record=record, progress=progress, sink=sink,
-                      **asdict(options))
+    try:
+        result = simulate(scenario, start_values=dict(start_values or {}), record=record, progress=progress,
+                          sink=sink, **asdict(options))
+    except SimulationError as exc:                                # the rows so far: their sidecar says what ran
+        if exc.result is not None:
+            try:
+                exc.result.units = units_of(scenario, exc.result.columns)
+            except ScenarioError:                                 # the run's own error comes first
+                pass
+            _describe(sink, scenario, options, start_values, record, exc.result)
+        raise
     result.units = units_of(scenario, result.columns)
+    result.verdict = verdict.judge(result, threshold, horizon)
+    _describe(sink, scenario, options, start_values, record, result)
+    if not result.verdict.accepted:
+        if accept == "raise":
+            raise ResultNotAccepted(result.verdict, result)
+        result.warnings.append(result.verdict.summary())
+        warnings.warn(ResultNotAcceptedWarning(f"{scenario.name}: {result.verdict.describe()}"), stacklevel=2)
     return result
+
+
+def _describe(sink, scenario: Scenario, options: RunOptions, start_values, record, result: Result) -> None:
+    """What the results file's sidecar says beside the rows (engine.outputs.sidecar): the scenario, the options,
+    the start values set, the versions, and what the result says (Result.metadata)."""
+    if sink is None:
+        return
+    from dataclasses import asdict
+
+    sink.meta.update(scenario={"name": scenario.name, "path": str(scenario.path)}, options=asdict(options),
+                     start_values={k: str(v) for k, v in (start_values or {}).items()}, record=record,
+                     versions=versions(), **result.metadata())
+
+
+def versions() -> dict[str, str]:
+    """The versions of emcosim, Python and the libraries a run's numbers depend on."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in ("emcosim", "fmpy", "numpy", "scipy"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "unknown"
+    return out
 
 
 def units_of(scenario: Scenario, names: Iterable[str]) -> dict[str, str]:
@@ -164,12 +223,14 @@ def units_of(scenario: Scenario, names: Iterable[str]) -> dict[str, str]:
     return units
 
 
-def figure(scenario: Scenario, result: Result, start_values: Mapping[str, str | float] | None = None):
+def figure(scenario: Scenario, result: Result, start_values: Mapping[str, str | float] | None = None,
+           mark: str | None = None):
     """The figure of a run (an engine.plotting.FigureSpec; engine.plotting.draw makes it a matplotlib figure):
     for a scenario of this suite's plant and controller FMUs (the paper's, or a device's built by `build_plant`)
     q against q*, the error, u, x_e and H in physical units (emcosim.paper.run_figure); for any other scenario
     one panel per recorded variable in its unit, without importing the paper's layer or touching the device
-    catalog.
+    catalog. A result that is not accepted (`result.verdict`, see `run`) or partial is marked: a red line under
+    the axes says why (`spec.mark`; `mark` gives the text instead).
 
     >>> r = run("maglev_regulation_prop2", RunOptions(stop_time=0.1))
     >>> [p.ylabel.split(" [")[0] for p in figure(load_scenario("maglev_regulation_prop2"), r).panels][:3]
@@ -182,7 +243,15 @@ def figure(scenario: Scenario, result: Result, start_values: Mapping[str, str | 
         from .paper.run_figure import run_figure
 
         spec = run_figure(scenario, result, dict(start_values or {}))
-    return spec or plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
+    spec = spec or plotting.variables_figure(result, plotting.variable_info(scenario), title=scenario.name)
+    spec.mark = mark or _mark_of(result)
+    return spec
+
+
+def _mark_of(result: Result) -> str:
+    """Why a result is not to be taken as it is ('' if it is accepted or was not judged)."""
+    verdict = getattr(result, "verdict", None)
+    return f"NOT ACCEPTED: {verdict.describe()}" if verdict is not None and not verdict.accepted else ""
 
 
 def _of_this_suite(scenario: Scenario) -> bool:

@@ -23,17 +23,18 @@ import shutil
 import sys
 from pathlib import Path
 
-from .engine.errors import Interrupted, NotAccepted, ScenarioError, SimulationError
+from .engine.errors import Interrupted, ResultNotAccepted, ScenarioError, SimulationError
 
 # the command line's names of the engine's options (the engine's messages name them as its API does)
 FLAGS = {"stop_time": "--stop-time", "step_size": "--step-size", "tolerance": "--tolerance", "max_step": "--max-step",
          "coupling": "--coupling", "coupling_order": "--coupling-order", "max_steps": "--max-steps",
          "start_values": "--set", "max_bytes": "--ssp-max-size", "max_files": "--ssp-max-files",
          "allow_external": "--allow-external", "interface_type": "--interface-type", "solver": "--solver",
-         "solver_steps": "--solver-steps", "rtol": "--rtol", "max_runs": "--max-runs"}
+         "solver_steps": "--solver-steps", "rtol": "--rtol", "max_runs": "--max-runs",
+         "error_threshold": "--error-threshold"}
 
 
-NOT_ACCEPTED = 5              # exit status of a run whose estimated coupling error is above --error-threshold
+NOT_ACCEPTED = 5              # exit status of a run whose result the library does not accept (engine/verdict.py)
 
 NUMBER_OPTIONS = ("--error-threshold", "--stop-time", "--step-size", "--tolerance", "--max-step", "--radius", "--rtol")
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"emcosim: interrupted by {name} (the command finished before it could stop)", file=sys.stderr)
             return 128 + signum
         return status
-    except NotAccepted as exc:                     # a complete run whose estimated error is too large
+    except ResultNotAccepted as exc:               # a complete run whose result is not accepted (engine/verdict.py)
         print(f"emcosim: warning: {error_line(exc)} (exit status {NOT_ACCEPTED}, docs/cli.md)", file=sys.stderr)
         return NOT_ACCEPTED
     except Interrupted as exc:                     # stopped between two communication points
@@ -326,14 +327,8 @@ def cmd_run(args) -> int:
     result = failure = None
     try:
         with sink:
-            result = run(scenario, options, start_values=start_values, record=record, progress=bar, sink=sink)
-            estimate = getattr(result, "coupling_error", None)
-            if estimate is not None:
-                sink.comment = f"emcosim: {estimate.summary()}"
-                if not estimate.accepted(threshold):
-                    raise NotAccepted(f"{estimate.summary()}: above the accepted {threshold:g} of its range "
-                                      "(--error-threshold); a shorter --step-size, --coupling implicit or "
-                                      "--tolerance gives a result that keeps it", result)
+            result = run(scenario, options, start_values=start_values, record=record, progress=bar, sink=sink,
+                         error_threshold=threshold)       # ResultNotAccepted: the library's verdict (exit 5)
     except SimulationError as exc:                 # the rows computed so far are in sink.final
         failure, result = exc, exc.result
     finally:
@@ -361,16 +356,10 @@ def cmd_run(args) -> int:
 
 
 def _error_threshold(value: float | None) -> float:
-    """--error-threshold: a finite number > 0 (default doubling.THRESHOLD)."""
-    import math
+    """--error-threshold: a finite number > 0 (default doubling.THRESHOLD), checked as the library checks it."""
+    from .engine.verdict import check_threshold
 
-    from .engine.doubling import THRESHOLD
-
-    if value is None:
-        return THRESHOLD
-    if not (math.isfinite(value) and value > 0):
-        raise ScenarioError(f"--error-threshold {value:g}: must be a positive number")
-    return value
+    return check_threshold(value)
 
 
 def _raise_failure(failure: SimulationError, sink, scenario, plot: str | None, start_values: dict) -> None:
@@ -423,12 +412,11 @@ def plot_run(scenario, rows: Path, path: str, start_values: dict, partial: bool 
     from .engine.outputs import write_file
     from .engine.results import Result, partial_note
 
-    fig = plotting.draw(figure(scenario, Result.from_csv(rows), start_values))
+    note = (partial_note(rows) or "emcosim: PARTIAL result") if partial else None
+    fig = plotting.draw(figure(scenario, Result.from_csv(rows), start_values, mark=note))
     fmt = Path(path).suffix[1:].lower()
     metadata = None
-    if partial:
-        note = partial_note(rows) or "emcosim: PARTIAL result"
-        _mark_partial(fig, note)
+    if note:
         key = {"png": "Description", "svg": "Description", "pdf": "Subject"}.get(fmt)
         metadata = {key: note} if key else None
     try:
@@ -438,19 +426,6 @@ def plot_run(scenario, rows: Path, path: str, start_values: dict, partial: bool 
         raise ScenarioError(f"--plot {path}: {getattr(exc, 'strerror', None) or exc}") from None
     finally:
         plt.close(fig)
-
-
-def _mark_partial(fig, note: str) -> None:
-    """A red line under the figure's axes (room made for it): how far the run got, then the partial
-    file's comment, cut to one line."""
-    height = fig.get_figheight()
-    engine = fig.get_layout_engine()
-    if engine is not None and hasattr(engine, "set"):
-        engine.set(rect=(0, 0.3 / height, 1, 1 - 0.3 / height))       # 0.3 inch below the axes
-    upto = re.search(r"\d+ rows up to t = \S+ s", note)
-    line = (f"PARTIAL: {upto.group(0)}. " if upto else "") + note
-    line = line if len(line) <= 160 else line[:157] + "..."
-    fig.text(0.005, 0.08 / height, line, color="red", fontsize=7, ha="left", va="bottom")
 
 
 def cmd_export(args) -> int:

@@ -43,8 +43,9 @@ import numpy as np
 
 from .engine.doubling import THRESHOLD
 from .engine.errors import LimitError, ScenarioError
-from .engine.options import RunOptions, options_of
+from .engine.options import RunOptions, experiment, options_of
 from .engine.ssd import Scenario, finite_number, read_scenario
+from .engine.verdict import NOT_ACCEPTED, judge
 
 Metrics = Callable[[Scenario, dict, object], dict]
 """metrics(scenario, values, result) -> the numbers of a run's row (a function importable on the workers)."""
@@ -58,8 +59,6 @@ per run: sweep.md, sweep.json and the plots are written from it), and 10^5 runs 
 three hours on one core."""
 
 IN_FLIGHT_PER_THREAD = 2
-NOT_ACCEPTED = "not accepted: "
-"""The start of the status of a run whose estimated coupling error exceeds the sweep's threshold."""
 """Runs submitted to the cluster per worker thread at a time (one running, one waiting): see run_all."""
 
 
@@ -221,7 +220,8 @@ def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], options: 
     """Run the scenario once with `values` and return its table row: the values, the metrics,
     'coupling_error' (a fixed-step co-simulation's estimated coupling error, the largest over the recorded
     variables relative to each one's range, engine/doubling.py; None where there is none) and 'status' ('ok',
-    NOT_ACCEPTED and why where that estimate exceeds `threshold`, or the one-line error). Never raises for a
+    NOT_ACCEPTED and why where the result is not accepted: engine/verdict.py, the verdict of `emcosim run` and
+    `emcosim.run`, e.g. that estimate above `threshold`; or the one-line error). Never raises for a
     failing run. `options` (RunOptions; `settings`:
     shorthands for its fields) as for `emcosim run`: e.g. a `tolerance` for error-controlled communication steps
     instead of the fixed step, which the scenario chose for its own gains and which other gains may not bear;
@@ -235,9 +235,8 @@ def run_point(ssd: str, fmu_dir: str | None, values: dict[str, float], options: 
         row.update((metrics or final_values)(scenario, values, result))
         estimate = getattr(result, "coupling_error", None)
         row["coupling_error"] = estimate.worst()[1] if estimate is not None and estimate.available else None
-        row["status"] = "ok"
-        if estimate is not None and not estimate.accepted(threshold):
-            row["status"] = f"{NOT_ACCEPTED}{estimate.summary()}: above {threshold:g} of its range"
+        verdict = judge(result, threshold, experiment(scenario, options).stop_time)
+        row["status"] = "ok" if verdict.accepted else verdict.summary()
     except Exception as exc:                          # noqa: BLE001 - a failed run is a row, not a crash
         text = " ".join(str(exc).split())
         row["status"] = text if isinstance(exc, ScenarioError) else f"{type(exc).__name__}: {text}"

@@ -66,7 +66,8 @@ def partial_of(out: Path) -> Path:
 
 
 def partial_note(path: Path) -> str | None:
-    """The first line of a partial results file without its '# ' (None if it has none)."""
-    with open(path) as f:
-        first = f.readline()
-    return first[2:].strip() if first.startswith("# emcosim: PARTIAL result") else None
+    """Why a results file is partial: its sidecar's reason, or the marker line of a file kept in place (a killed
+    run's, a full disk's); None for a complete file (emcosim.engine.results.partial_note)."""
+    from emcosim.engine.results import partial_note as note
+
+    return note(path)

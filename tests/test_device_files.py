@@ -25,6 +25,7 @@ from fmpy.validation import validate_fmu
 from emcosim.cli import main
 from emcosim.engine import binding, vendor
 from emcosim.engine.errors import ScenarioError
+from emcosim.engine.outputs import read_sidecar
 from emcosim.engine.results import read_csv
 from emcosim.engine.ssd import read_scenario
 
@@ -119,9 +120,7 @@ def test_the_matching_loop_runs_without_a_warning(built, tmp_path, capsys):
     out = tmp_path / "r.csv"
     status, err = run(["run", str(loop), "-o", str(out)], capsys)
     assert status == 0 and "warning" not in err, err
-    lines = out.read_text().splitlines()
-    comments = [line for line in lines if line.startswith("#")]
-    assert lines[len(comments)].startswith("time,") and not any("note" in line for line in comments), comments
+    assert out.read_text().startswith("time,") and read_sidecar(out)["notes"] == []
 
 
 @pytest.mark.parametrize("how", ["--set", ".ssv"])
@@ -142,11 +141,9 @@ def test_a_plant_parameter_the_controller_does_not_model_warns_and_the_header_sa
     assert status == 0, err
     warning = [line for line in err.splitlines() if line.startswith("emcosim: warning: ")]
     assert len(warning) == 1 and "plant.k_s = 7000.0" in warning[0] and "controller.k_s = 5000.0" in warning[0], err
-    lines = (tmp_path / "r.csv").read_text().splitlines()
-    comments = [line for line in lines if line.startswith("#")]          # the note and the run's error estimate
-    notes = [line for line in comments if line.startswith("# emcosim: note: ")]
-    assert len(notes) == 1 and "plant.k_s = 7000.0" in notes[0] and "controller.k_s = 5000.0" in notes[0], comments
-    assert lines[len(comments)].startswith("time,")
+    assert (tmp_path / "r.csv").read_text().startswith("time,")       # issue 41: the note in the sidecar
+    notes = read_sidecar(tmp_path / "r.csv")["notes"]
+    assert len(notes) == 1 and "plant.k_s = 7000.0" in notes[0] and "controller.k_s = 5000.0" in notes[0], notes
     q = read_csv(tmp_path / "r.csv")["plant.q"]
     assert abs(q[-1] - 0.001) > 4e-4                    # the issue's 0.52 mm at 0.1 s, not q_d = 1 mm
 
@@ -157,7 +154,7 @@ def test_a_model_exchange_run_notes_it_too(built, tmp_path, capsys):
     status, err = run(["run", str(loop), "-o", str(out), "--interface-type", "ModelExchange",
                        "--set", "controller.R_c=6"], capsys)
     assert status == 0 and "plant.R_c = 5.0, but the controller 'controller' models it with controller.R_c = 6.0" in err
-    assert out.read_text().startswith("# emcosim: note: plant.R_c = 5.0")
+    assert out.read_text().startswith("time,") and read_sidecar(out)["notes"][0].startswith("plant.R_c = 5.0")
 
 
 # ---- item 6: files -----------------------------------------------------------------------------------

@@ -11,6 +11,7 @@ import pytest
 from emcosim.cli import main
 from emcosim.engine import doubling
 from emcosim.engine.master import simulate
+from emcosim.engine.outputs import read_sidecar
 from emcosim.engine.results import partial_note, read_csv
 from emcosim.engine.ssd import read_scenario
 
@@ -109,7 +110,8 @@ def test_a_coarse_step_device_run_exits_5_with_the_warning(device, tmp_path, cap
     good = tmp_path / "implicit.csv"
     assert main(["run", str(device), "--coupling", "implicit", "-o", str(good), "--no-progress"]) == 0
     assert "estimated coupling error" in capsys.readouterr().out
-    assert good.read_text().startswith("# emcosim: estimated coupling error")
+    assert good.read_text().startswith("time,")                      # issue 41: the estimate in the sidecar
+    assert read_sidecar(good)["coupling_error"]["summary"].startswith("estimated coupling error")
     coarse, right = read_csv(partial), read_csv(good)      # the warning is deserved: q is far off
     scale = np.ptp(right["plant.q"])
     assert np.max(np.abs(coarse["plant.q"] - right["plant.q"])) > 10 * scale

@@ -101,7 +101,7 @@ def test_failing_run_keeps_its_rows_and_leaves_the_result_alone(loop, tmp_path, 
     out = tmp_path / "r.csv"
     assert run(["run", str(loop), "-o", str(out)], capsys)[0] == 0
     good = out.read_bytes()
-    assert len(good.splitlines()) == 103                                 # the estimate's comment, header, 101 rows
+    assert len(good.splitlines()) == 102                                 # the header, 101 rows (the estimate: r.json)
     line = error_line(["run", str(loop), "--set", "plant.fail_at=0.5", "-o", str(out)], capsys)
     assert out.read_bytes() == good                                     # the good result is untouched
     partial = partial_of(out)

@@ -289,7 +289,7 @@ def test_second_failed_run_keeps_the_first_partial_file(loop, tmp_path, capsys):
     assert f"21 rows up to t = 0.2 s saved to {second}" in err, err
     assert partial_of(out).read_bytes() == first
     assert len(read_csv(partial_of(out))["time"]) == 51 and len(read_csv(second)["time"]) == 21
-    assert names(tmp_path) == {"loop", "r.partial.csv", "r.partial-2.csv"}
+    assert names(tmp_path) == {"loop", "r.partial.csv", "r.partial-2.csv", "r.partial.json", "r.partial-2.json"}
 
 
 def test_second_failed_folder_keeps_the_first_partial_folder(tmp_path):
@@ -323,7 +323,7 @@ def test_failed_run_keeps_the_good_figure(loop, tmp_path, capsys):
     assert f"plot {partial}" in err.splitlines()[-1], err
     description = Image.open(partial).text.get("Description", "")
     assert description.startswith("emcosim: PARTIAL result") and "51 rows up to t = 0.5 s" in description, description
-    assert names(tmp_path) == {"loop", "r.csv", "r.png", "r.partial.csv", "r.partial.png"}
+    assert names(tmp_path) == {"loop", "r.csv", "r.json", "r.png", "r.partial.csv", "r.partial.json", "r.partial.png"}
 
 
 @pytest.mark.parametrize("plot, message", [("x.txt", "cannot draw a .txt file"), ("x", "no image format")])

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from emcosim import cli
+from emcosim.engine.outputs import read_sidecar
 from emcosim.engine.results import Result, read_csv
 from emcosim.engine.ssd import read_scenario
 from emcosim.paper.sweep import metrics_of, parse_grid, parse_sample, points
@@ -84,8 +85,8 @@ def test_sweep_equals_runs_one_by_one(local_table, fmu_dir, tmp_path):
         expected = metrics_of(scenario, {"controller.D_d": value}, result_of_csv(csv))
         for m in METRICS + ["initial_error"]:
             assert row[m] == expected[m], (value, m)          # bit for bit: same master, same FMUs
-        # the run's estimate, as `run` writes it in its file's first line
-        assert f"{row['coupling_error']:.2g} of its range" in csv.read_text().splitlines()[0]
+        # the run's estimate, as `run` writes it in its file's sidecar (issue 41: no comment line in the CSV)
+        assert row["coupling_error"] == max(read_sidecar(csv)["coupling_error"]["relative"].values())
     # the study is meaningful: coupled damping changes the response
     assert len({r["ise"] for r in local_table}) == 3
 
@@ -309,7 +310,7 @@ def test_heatmap_log_scale_not_settled_and_grid_ticks(tmp_path):
     data = heatmap_data(_rows(settle, "settling_time_2pct"), list(grid), grid, units, "settling_time_2pct", 40.0)
     assert data["x"]["ticks"] == [-1.0, 0.0] and data["y"]["ticks"] == [0.82, 2.82]
     assert data["x"]["label"] == "controller.D_d [Wb/m]"
-    assert data["text"] == [["4.5", "not settled"], ["12", "not settled"]]   # inf, and equal to the horizon
+    assert data["text"] == [["4.5", "not reached"], ["12", "not reached"]]   # inf, and equal to the horizon
     assert data["scale"] == "linear"                                          # 4.5 .. 12: within a decade
     ise = {(-1.0, 0.82): 5e-7, (0.0, 0.82): 1e-5, (-1.0, 2.82): 1.2e-6, (0.0, 2.82): 3e-7}
     files = plot(_rows(ise, "ise"), grid, units, tmp_path, horizon=40.0)
@@ -321,7 +322,7 @@ def test_heatmap_log_scale_not_settled_and_grid_ticks(tmp_path):
     (tmp_path / "s").mkdir()
     plot(_rows(settle, "settling_time_2pct"), grid, units, tmp_path / "s", horizon=40.0)
     unsettled = _png_description(tmp_path / "s" / "sweep_settling_time_2pct.png")
-    assert unsettled["values"] == [[4.5, None], [12.0, None]] and unsettled["text"][1][1] == "not settled"
+    assert unsettled["values"] == [[4.5, None], [12.0, None]] and unsettled["text"][1][1] == "not reached"
 
 
 def test_line_plot_marks_not_settled_and_ticks_the_grid(tmp_path):
@@ -389,3 +390,21 @@ def test_failed_runs_at_the_default_step_get_a_note(fmu_dir, tmp_path, capsys):
     rows = read_table(tmp_path / "s" / "sweep.csv")
     assert [r["status"] == "ok" for r in rows] == [False, True]
     assert "failed runs may need --step-size or --tolerance, or --coupling implicit" in err, err
+
+
+def test_the_sweep_table_says_what_the_reproduce_report_says_for_a_band_not_reached(tmp_path):
+    """Issue 41, item 7: sweep.md said `inf` where reproduce's metrics.md says 'not reached' for a time into the
+    band that the horizon does not reach. Both now say the same words; sweep.csv keeps the number (inf) that
+    every CSV reader reads as one."""
+    import csv
+
+    from emcosim.paper.sweep_output import write_table
+
+    rows = [{"controller.D_d": d, **{m: 1.0 for m in METRICS}, "settling_time_2pct": st, "coupling_error": None,
+             "status": "ok"} for d, st in [(-1.0, 0.5), (0.0, float("inf"))]]
+    write_table(rows, tmp_path, {"scenario": "s", "runs": 2, "failed": 0, "workers": 1, "runs_per_s": 1.0,
+                                 "coupling": "explicit", "step_size": 1e-3})
+    table = [line for line in (tmp_path / "sweep.md").read_text().splitlines() if line.startswith("| 1 |")]
+    assert len(table) == 1 and "| not reached |" in table[0] and "inf" not in table[0], table
+    with open(tmp_path / "sweep.csv", newline="") as f:
+        assert [r["settling_time_2pct"] for r in csv.DictReader(f)] == ["0.5", "inf"]

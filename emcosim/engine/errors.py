@@ -51,9 +51,22 @@ class SimulationError(ScenarioError):
         self.result = result
 
 
-class NotAccepted(SimulationError):
-    """The run completed, but its estimated error exceeds what the caller accepts (doubling.py): the rows are
-    kept as a partial result. The command line warns and exits with status 5 (docs/cli.md)."""
+class ResultNotAccepted(SimulationError):
+    """The run completed, but its result is not accepted (verdict.py: its estimated coupling error above the
+    threshold, a value that is not finite, or the horizon not reached). `verdict` says why, `result` holds
+    the rows (a partial result: plot it, marked). `emcosim.run` raises it (accept="warn" returns the result
+    with a warning instead); the command line warns, keeps the rows as NAME.partial.csv and exits with
+    status 5 (docs/cli.md)."""
+
+    def __init__(self, verdict, result=None):
+        self.verdict = verdict
+        super().__init__(verdict.describe(), result)
+
+    def describe(self, names: Mapping[str, str] | None = None) -> str:
+        return self.verdict.describe(names)
+
+
+NotAccepted = ResultNotAccepted               # its name before issue 41
 
 
 class Interrupted(SimulationError):

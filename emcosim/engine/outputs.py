@@ -13,13 +13,21 @@ The rules (issues 15 and 26):
   it (and only if it is a regular file of ours, not a link): never by its name. What is written into
   it comes from that marker, never from a file name.
 
+A results CSV that emcosim puts in place (`NAME.csv`, `NAME.partial[-N].csv`) starts with its header,
+`time` first, and holds nothing but rows (issue 41): pandas.read_csv, fmpy.util.read_csv and
+numpy.genfromtxt(names=True) read it as it is. What a run says beside its rows (the estimate, notes, why it
+is partial, units, the scenario, options, versions) is in its sidecar `NAME.json` (`sidecar_of`), written
+by the same rules and only over a sidecar of ours (`check_sidecar`).
+
 `ResultFile` writes a results CSV row by row: the rows go to `NAME.incomplete-PID.csv`, whose first
 line (MARK_BYTES long, padded with spaces) is a comment marking it as emcosim's and partial ("being
 written by pid N"). The rows reach the operating system at least every second (and every 256 KiB),
 so that kill -9 loses at most the last second. On success the rows after that line are copied into
-a new file that is renamed to `NAME.csv`; on an error, Ctrl-C, SIGTERM or a full disk the first line
-is overwritten in place with why (no byte is added: a full disk cannot stop it) and the file is
-renamed to the first free partial name. A killed run's file keeps its marker line; the next run
+a new file that is renamed to `NAME.csv`, its sidecar beside it; on an error, Ctrl-C or SIGTERM they are
+copied likewise to the first free partial name, its sidecar saying why. Where that copy cannot be
+written (a full disk), the first line is overwritten in place with why (no byte is added: a full disk
+cannot stop it) and the file is renamed to the partial name as it is: the one results file that keeps a
+comment line, so that no row is lost. A killed run's file keeps its marker line; the next run
 writing the same destination finds it unlocked (the kernel releases a killed process's `flock`) and
 rewrites the line to say so.
 
@@ -35,6 +43,8 @@ import csv
 import errno
 import fcntl
 import io
+import json
+import math
 import os
 import re
 import signal
@@ -58,6 +68,7 @@ from .files import (
     open_own,
     partial_names,
     place,
+    rename_noreplace,
     shown,
     sibling,
     unlink,
@@ -73,7 +84,7 @@ _BEING_WRITTEN = re.compile(rb"# emcosim: PARTIAL result, being written by pid (
 
 
 
-def write_file(dest: str | Path, write: Callable[[BinaryIO], None], partial: bool = False) -> Path:
+def write_file(dest: str | Path, write: Callable[[BinaryIO], object], partial: bool = False) -> Path:
     """Write a file with `write(f)` into a new file beside `dest`, then rename it to `dest` (replacing
     it) or, with `partial`, to the first free NAME.partial[-N].SUFFIX; returns the path written.
     OSError if the file cannot be written (nothing is left behind then)."""
@@ -95,31 +106,90 @@ def write_file(dest: str | Path, write: Callable[[BinaryIO], None], partial: boo
         os.close(fd)
 
 
-def write_csv(path: str | Path, header: list[str], rows, note: str | None = None, notes: Sequence[str] = ()) -> None:
-    """A CSV of rows (exact numbers, repr), written by `write_file`; `note` a first comment line, `notes`
-    comment lines "# emcosim: note: ..." before the header (`note_lines`)."""
+def write_csv(path: str | Path, header: list[str], rows, why: str | None = None, meta: dict | None = None) -> None:
+    """A CSV of rows (exact numbers, repr), its header first, written by `write_file`, and its sidecar (what
+    `meta` says, `sidecar`); `why` a partial result's reason (the file is then named as the caller says:
+    NAME.partial.csv, NAME.csv of an interrupted folder)."""
     path = Path(path)
+    check_sidecar(path)
+    rows = [list(r) for r in rows]
 
     def write(f: BinaryIO) -> None:
         text = io.TextIOWrapper(f, encoding="utf-8", newline="")
-        if note:
-            text.write(f"# {one_line(note)}\n")
-        text.write(note_lines(notes))
-        w = csv.writer(text)
-        w.writerow(header)
-        w.writerows([[repr(float(v)) for v in row] for row in rows])
+        text.write(header_line(header))
+        csv.writer(text).writerows([[repr(float(v)) for v in row] for row in rows])
         text.flush()
         text.detach()
+    data = sidecar(path, header[1:], "partial" if why else "complete", why, len(rows),
+                   float(rows[-1][0]) if rows else None, meta)
     try:
+        write_file(sidecar_of(path), lambda f: f.write(data))
         write_file(path, write)
     except OSError as exc:
         raise ScenarioError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
-def note_lines(notes: Sequence[str]) -> str:
-    """Comment lines at the top of a results file, one per note (what the run must say beside its rows,
-    e.g. binding.model_differences); readers skip lines starting with '#' (results.read_csv)."""
-    return "".join(f"# emcosim: note: {one_line(n)}\n" for n in notes)
+def header_line(header: Sequence[str]) -> str:
+    """The first line of a results CSV: the columns' names (quoted by the csv module only where a name holds a
+    comma or a quote)."""
+    text = io.StringIO()
+    csv.writer(text, lineterminator="\n").writerow(list(header))
+    return text.getvalue()
+
+
+# ---- the sidecar: what a results file says beside its rows ----------------------------------------
+
+SIDECAR_KIND = "results sidecar"
+
+
+def sidecar_of(path: str | Path) -> Path:
+    """The sidecar of a results file: NAME.json beside NAME.csv (NAME.json.json beside a file NAME.json)."""
+    path = Path(path)
+    return path.with_name(path.name + ".json") if path.suffix == ".json" else path.with_suffix(".json")
+
+
+def sidecar(path: Path, columns: Sequence[str], status: str, why: str | None, rows: int, last_time: float | None,
+            meta: dict | None = None, **extra) -> bytes:
+    """The sidecar's JSON (strict: no NaN or Infinity; numbers that are not finite as null): what it belongs to
+    (`csv`, `status` "complete" or "partial", `why` partial, `rows`, `last_time` [s], `columns`), then `meta`
+    (the run's own: scenario, options, units, notes, warnings, coupling_error, verdict, versions: see
+    emcosim.api.run) and `extra`."""
+    data = {"emcosim": SIDECAR_KIND, "version": 1, "csv": path.name, "status": status, "partial": status != "complete",
+            "why": why, "rows": rows, "last_time": last_time, "columns": ["time", *columns], **(meta or {}), **extra}
+    return (json.dumps(_strict(data), indent=1, allow_nan=False, default=str) + "\n").encode()
+
+
+def _strict(x):
+    if isinstance(x, dict):
+        return {str(k): _strict(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_strict(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def read_sidecar(path: str | Path) -> dict | None:
+    """The sidecar of the results file `path` (None if it has none of ours)."""
+    fd = open_own(sidecar_of(path), os.O_RDONLY, same_owner=False)
+    if fd is None:
+        return None
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = json.loads(f.read(1 << 24))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and data.get("emcosim") == SIDECAR_KIND else None
+
+
+def check_sidecar(path: Path) -> None:
+    """A ScenarioError unless the sidecar of `path` can be written: absent, or a sidecar of ours (a file of
+    the user's named NAME.json is never replaced)."""
+    side = sidecar_of(path)
+    check_destination(side)
+    if os.path.lexists(side) and read_sidecar(path) is None:
+        raise ScenarioError(f"{shown(side)}: exists and is not emcosim's sidecar of {path.name} (not replaced); "
+                            "the results of a run are NAME.csv and NAME.json: give another name")
 
 
 # ---- a results file written while the run goes ---------------------------------------------------
@@ -137,6 +207,7 @@ class ResultFile:
         self.path = Path(path)
         self.what = one_line(what)[:200]       # e.g. the scenario name, for the partial file's comment
         check_destination(self.path)
+        check_sidecar(self.path)
         self.notes = mark_orphans(self.path)
         self.started = time.strftime(TIMESTAMP)
         try:
@@ -160,12 +231,15 @@ class ResultFile:
         self.last_time: float | None = None     # time of the last row on disk
         self.last_flush = time.monotonic()
         self.final: Path | None = None
-        self.comment: str | None = None         # a first comment line of the complete file (e.g. its error estimate)
+        self.columns: list[str] = []
+        self.meta: dict = {}                    # what the run says beside its rows, for the sidecar (emcosim.api.run)
 
     # the sink protocol of Result
     def start(self, columns: list[str], notes: Sequence[str] = ()) -> None:
-        """The header: the notes of the run (`note_lines`), then the columns' names (one buffered item)."""
-        self.buffer.append(note_lines(notes) + ",".join(["time", *columns]) + "\n")
+        """The header, the columns' names (one buffered item); the notes of the run go to the sidecar."""
+        self.columns = list(columns)
+        self.meta.setdefault("notes", list(notes))
+        self.buffer.append(header_line(["time", *columns]))
 
     def write(self, row: list) -> None:
         line = ",".join([repr(float(v)) for v in row]) + "\n"
@@ -221,10 +295,9 @@ class ResultFile:
         except OSError as exc:
             raise SimulationError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         try:
-            head = f"# {one_line(self.comment)}\n".encode() if self.comment is not None else b""
-            os.pwrite(out, head, 0)
-            copy(self.fd, out, MARK_BYTES, self.written - MARK_BYTES, at=len(head))
+            copy(self.fd, out, MARK_BYTES, self.written - MARK_BYTES)
             os.fsync(out)
+            write_file(sidecar_of(self.path), lambda f: f.write(self._sidecar("complete", None, self.path)))
             os.replace(temp, self.path)
         except OSError as exc:
             unlink(temp)
@@ -252,6 +325,12 @@ class ResultFile:
                 unlink(self.temp)
                 return None
             try:
+                self.final = self._keep(reason)           # the rows, header first, and the sidecar
+                unlink(self.temp)
+                return self.final
+            except OSError:
+                pass                                      # a full disk: keep the rows where they are
+            try:
                 os.pwrite(self.fd, self._comment(reason), 0)    # in place: the file does not grow
             except OSError:
                 pass                                      # the marker line still says it is partial
@@ -263,6 +342,41 @@ class ResultFile:
         finally:
             os.close(self.fd)
             self.fd = -1
+
+    def _sidecar(self, status: str, why: str | None, csv_path: Path) -> bytes:
+        return sidecar(csv_path, self.columns, status, why, self.rows, self.last_time, self.meta,
+                       of=self.what or None,
+                       run={"pid": os.getpid(), "started": self.started, "ended": time.strftime(TIMESTAMP)})
+
+    def _keep(self, reason: str) -> Path:
+        """The rows copied (after the marker line) into NAME.partial[-N].csv, the first free name whose
+        sidecar name is free too, and that sidecar saying why; OSError if they cannot be written."""
+        out, temp = create_beside(self.path, "incomplete")
+        try:
+            copy(self.fd, out, MARK_BYTES, self.written - MARK_BYTES)
+            os.fsync(out)
+            for candidate in partial_names(self.path):
+                if os.path.lexists(sidecar_of(candidate)):
+                    continue
+                side, side_temp = create_beside(sidecar_of(candidate), "incomplete")
+                try:
+                    os.write(side, self._sidecar("partial", one_line(reason), candidate))
+                    os.fsync(side)
+                finally:
+                    os.close(side)
+                if not rename_noreplace(side_temp, sidecar_of(candidate)):
+                    unlink(side_temp)
+                    continue
+                if rename_noreplace(temp, candidate):
+                    fsync_folder(self.path.parent)
+                    return candidate
+                unlink(sidecar_of(candidate))             # ours, just made: the CSV's name was taken meanwhile
+            raise FileExistsError(errno.EEXIST, f"no free partial name for {self.path.name}")
+        except BaseException:
+            unlink(temp)
+            raise
+        finally:
+            os.close(out)
 
     def _comment(self, reason: str) -> bytes:
         what = f" of {self.what}" if self.what else ""
@@ -372,5 +486,6 @@ def _mark_orphan(path: Path) -> str | None:
         os.close(fd)
 
 
-__all__ = ["MARK_BYTES", "PARTIAL_MARK", "ResultFile", "check_destination", "mark_orphans", "partial_names",
-           "reason_of", "writable", "write_csv", "write_file"]
+__all__ = ["MARK_BYTES", "PARTIAL_MARK", "ResultFile", "check_destination", "check_sidecar", "header_line",
+           "mark_orphans", "partial_names", "read_sidecar", "reason_of", "sidecar", "sidecar_of", "writable",
+           "write_csv", "write_file"]

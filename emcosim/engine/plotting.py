@@ -60,6 +60,7 @@ class FigureSpec:
     legend: str = "right"
     note: str = ""                              # a line under the title (e.g. how a norm is scaled)
     size: tuple[float, float] | None = None
+    mark: str = ""                              # why the result shown is partial or not accepted: red, under the axes
 
     def panel(self, ylabel_start: str) -> Panel:
         """The panel whose y label starts with `ylabel_start` (for tests and readers)."""
@@ -127,7 +128,24 @@ def draw(spec: FigureSpec):
     title = spec.title + (f"\n{spec.note}" if spec.note else "")
     if title:
         fig.suptitle(title, fontsize=11)
+    if spec.mark:
+        mark(fig, spec.mark)
     return fig
+
+
+def mark(fig, text: str) -> None:
+    """A red line under the figure's axes (room made for it): how far the run got (where the text says), then
+    the text (why the result is partial or not accepted), cut to one line."""
+    import re
+
+    height = fig.get_figheight()
+    engine = fig.get_layout_engine()
+    if engine is not None and hasattr(engine, "set"):
+        engine.set(rect=(0, 0.3 / height, 1, 1 - 0.3 / height))       # 0.3 inch below the axes
+    upto = re.search(r"\d+ rows up to t = \S+ s", text)
+    line = (f"PARTIAL: {upto.group(0)}. " if upto else "") + " ".join(text.split())
+    line = line if len(line) <= 160 else line[:157] + "..."
+    fig.text(0.005, 0.08 / height, line, color="red", fontsize=7, ha="left", va="bottom")
 
 
 def save(fig, path: str | Path, formats: tuple[str, ...] | None = None, dpi: int = 110) -> list[Path]:

@@ -148,6 +148,17 @@ def finite_or_none(x):
     return x
 
 
+NOT_REACHED = "not reached"
+"""What a table says for a time into the 2 % band that is not reached within the horizon (inf): the metrics
+table of `reproduce`, the claims report and the sweep's table and plots say the same words (`settling_text`)."""
+
+
+def settling_text(value: float, digits: int = 4) -> str:
+    """A time into the 2 % band [s] as a table shows it: NOT_REACHED for inf (|e| does not stay in the band
+    within the horizon), else the number to `digits` significant digits."""
+    return NOT_REACHED if value == math.inf else f"{value:.{digits}g}"
+
+
 def metrics_table(runs: dict[str, Run]) -> tuple[str, dict]:
     """(Markdown table, strict-JSON dict) of the metrics of every run. JSON: a settling time that is
     not reached within the horizon is null; `horizon_s` is the horizon of the run."""
@@ -158,7 +169,7 @@ def metrics_table(runs: dict[str, Run]) -> tuple[str, dict]:
             "| final error [m] | max abs u [V] | recorded every [s] | note |\n|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for n, m in data.items():
-        settle = f"{m['settling_time_2pct']:.4g}" if math.isfinite(m["settling_time_2pct"]) else "not reached"
+        settle = settling_text(m["settling_time_2pct"])
         note = "; ".join([*runs[n].notes, *m["unresolved"].values()]) + ("; run shortened" if runs[n].shortened else "")
         rows.append(f"| {n} | {m['horizon_s']:.4g} | {settle} | {m['overshoot']:.3g} | {m['oscillations']} | "
                     f"{m['ise']:.3g} | {m['final_error']:.3g} | {m['max_abs_u']:.4g} | {m['resolution']:.3g} | "
@@ -525,7 +536,7 @@ def _overdamping_claim(rows: list[dict]) -> Claim:
 
 def _fmt(v) -> str:
     if isinstance(v, float):
-        return "not reached" if v == float("inf") else f"{v:.4g}"
+        return settling_text(v)
     if v is None:
         return "n/a"
     return str(v)
@@ -558,7 +569,7 @@ def write_reports(runs: dict[str, Run], cases: dict[str, str], out: Path, choice
     horizons = "\n".join(f"| {n} | {r.t[-1]:g} | {r.horizon:g} | {r.t[1] - r.t[0]:g} |" for n, r in runs.items())
     (out / "metrics.md").write_text("\n".join([
         "# Metrics per case\n", *top,
-        "Position error e = q - q*; band = 2 % of |e(0)|; overshoot in % of |e(0)|; 'not reached': |e| does not "
+        f"Position error e = q - q*; band = 2 % of |e(0)|; overshoot in % of |e(0)|; '{NOT_REACHED}': |e| does not "
         "stay in the band within the horizon (null in metrics.json).\n", table_md, ""]))
     (out / "metrics.json").write_text(json.dumps(table, indent=1, allow_nan=False))
     body = ["# Claims of Section 7, checked\n", *top,

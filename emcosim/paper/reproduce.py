@@ -496,7 +496,7 @@ def _reproduce_into(out_path: Path, stop_time, out, fmu_dir, jobs, finished: dic
         for name, exc in failed.items():
             partial = getattr(exc, "result", None)
             if partial is not None and len(partial):
-                partial.write_csv(out_path / f"{name}.partial.csv", note=f"emcosim: PARTIAL result of {name}: {exc}")
+                partial.write_csv(out_path / f"{name}.partial.csv", why=f"{name}: {exc}")
         raise ScenarioError(f"{len(failed)} of {len(run_tasks(PAPER_CASES, stop_time, decisions))} scenarios failed: "
                             + "; ".join(f"{n}: {' '.join(str(e).split())}" for n, e in failed.items()))
     return content

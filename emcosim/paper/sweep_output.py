@@ -5,8 +5,9 @@ Table: one row per run, with the swept parameter values, the metrics of the repr
 over the swept parameter; for a 2-D grid one heatmap per metric, on a log colour scale where the
 values span more than a decade, with ticks at the grid values. With random plant samples, a grid
 point shows the mean over its samples (1-D: plus the min-max band). A run whose error never stays in
-the 2 % band within the horizon (settling time inf, or equal to the horizon) is marked "not settled"
-rather than plotted as a number; failed runs are left out of the plots and listed in the table.
+the 2 % band within the horizon (settling time inf, or equal to the horizon) is marked "not reached"
+(report.NOT_REACHED, the words of the reproduce report and of the table) rather than plotted as a
+number; failed runs are left out of the plots and listed in the table.
 Each PNG carries what it shows (grid, values, labels) as JSON in its 'Description' metadata.
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..engine.doubling import THRESHOLD
-from .report import finite_or_none
+from .report import NOT_REACHED, finite_or_none, settling_text
 
 METRICS = ["settling_time_2pct", "overshoot", "oscillations", "ise", "final_error", "max_abs_u"]
 """The metrics of report.run_metrics put in the table (initial_error is kept too, not plotted)."""
@@ -82,9 +83,9 @@ def write_table(rows: list[dict], out: Path, info: dict) -> list[Path]:
              f"{info.get('workers')} worker(s), "
              f"{info.get('runs_per_s', float('nan')):.3g} runs/s.", "", _settings(info), "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(_cell(r[c]) for c in cols) + " |" for r in table]
-    lines += ["", "settling_time_2pct inf: the error never stays in the 2 % band of |e(0)| within the horizon "
-                  "(null in sweep.json)."]
+    lines += ["| " + " | ".join(_cell(r[c], c) for c in cols) + " |" for r in table]
+    lines += ["", f"settling_time_2pct '{NOT_REACHED}': the error never stays in the 2 % band of |e(0)| within the "
+                  "horizon (inf in sweep.csv, null in sweep.json)."]
     (out / "sweep.md").write_text("\n".join(lines) + "\n")
     clean = [finite_or_none(r) for r in table]                             # strict JSON: no Infinity/NaN
     (out / "sweep.json").write_text(json.dumps({"info": info, "rows": clean}, indent=1, default=str))
@@ -98,9 +99,12 @@ def read_table(path: Path) -> list[dict]:
     return [{k: (v if k == "status" else (float(v) if v != "" else None)) for k, v in r.items()} for r in rows]
 
 
-def _cell(v) -> str:
+def _cell(v, column: str = "") -> str:
+    """A cell of the Markdown table (a time into the band as the reproduce report says it: settling_text)."""
     if v is None:
         return ""
+    if isinstance(v, float) and column == "settling_time_2pct":
+        return settling_text(v)
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v).replace("|", "/")
@@ -117,7 +121,7 @@ def replot(folder: Path, out: Path | None = None, prefix: str = "sweep", title: 
 
 # ---- plots ---------------------------------------------------------------------------------------
 
-NOT_SETTLED = "not settled"
+NOT_SETTLED = NOT_REACHED                 # a settling time inf or equal to the horizon, on a plot
 
 
 def plot(rows: list[dict], grid: dict[str, list[float]], units: dict[str, str], out: Path,
@@ -207,7 +211,7 @@ def _lines(rows, name, values, units, path: Path, title: str, horizon: float | N
 def heatmap_data(rows: list[dict], names: list[str], grid: dict[str, list[float]], units: dict[str, str],
                  metric: str, horizon: float | None = None) -> dict:
     """What the heatmap of `metric` over a 2-D grid shows: the mean value per cell (None where there
-    is none), the text of each cell (the value, 'not settled' or 'n/a'), whether the colour scale is
+    is none), the text of each cell (the value, 'not reached' or 'n/a'), whether the colour scale is
     logarithmic (the finite values span more than a decade), the axes with their ticks (the grid
     values) and labels."""
     xs, ys = list(grid[names[0]]), list(grid[names[1]])
@@ -218,7 +222,7 @@ def heatmap_data(rows: list[dict], names: list[str], grid: dict[str, list[float]
             s, unsettled = _values_at(rows, {names[0]: x, names[1]: y}, metric, horizon)
             if s.size:
                 z[i, j] = s.mean()
-                text[i][j] = f"{z[i, j]:.3g}" + (f" ({unsettled} not settled)" if unsettled else "")
+                text[i][j] = f"{z[i, j]:.3g}" + (f" ({unsettled} {NOT_SETTLED})" if unsettled else "")
             elif unsettled:
                 text[i][j] = NOT_SETTLED
     finite = np.abs(z[np.isfinite(z)])
@@ -260,7 +264,7 @@ def _heatmap(data: dict, path: Path, title: str) -> Path:
     ax.set_xlabel(data["x"]["label"])
     ax.set_ylabel(data["y"]["label"])
     missing = not np.all(np.isfinite(z))
-    sub = data["title"] + ("\n(blank: not settled within the horizon, or n/a: run failed)" if missing else "")
+    sub = data["title"] + (f"\n(blank: {NOT_SETTLED} within the horizon, or n/a: run failed)" if missing else "")
     ax.set_title(f"{title}\n{sub}" if title else sub, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100, metadata=_describe(data))

@@ -39,6 +39,7 @@ NOT_DECIDED = "not decided"
 NOT_FINITE = "not finite"          # the start of the reason where a number of a numeric test overflowed
 ASSUMPTION_OF = {"Proposition1": "Assumption 1", "Proposition2": "Assumption 2",
                  "Theorem2": "Assumption 3", "Theorem3": "Assumption 4"}
+NO_OPERATING_POINT = "no operating point"   # how missing_operating_point's reason starts
 TIMES = 21          # sampled times of a reference
 SAMPLES = 32        # random points per sampled time in the box (besides its centre and vertices)
 RADIUS = 0.1        # default box: half-width RADIUS x the state's scale around eta*(t)
@@ -140,7 +141,9 @@ class Report:
                  "  parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in self.parameters.items()),
                  f"  numeric checks: {self.box}"]
         if self.operating_point:
-            lines.append(f"  operating point (n_e > n_m): {self.operating_point}; Assumptions 1-4 are tested there")
+            tested = ("no design can be built" if self.operating_point.startswith(NO_OPERATING_POINT)
+                      else "Assumptions 1-4 are tested there")
+            lines.append(f"  operating point (n_e > n_m): {self.operating_point}; {tested}")
         for v in [self.setpoint, self.reference, *self.assumptions]:
             if v is None:
                 continue
@@ -766,14 +769,31 @@ def assumption_4(model: Model, structure: list[Test], trajectory: Trajectory | N
 
 # ---- the designs -----------------------------------------------------------------------------------
 
-def designs(assumptions: list[Verdict], setpoint: Verdict, reference: Verdict | None, q_d_given: bool) -> list[DesignVerdict]:
+def missing_operating_point(model: Model) -> str:
+    """Why no design can fix the electrical operating point ("" where one can): for n_e > n_m the free
+    electrical coordinates of x_e* (Definition 1) and of x_e_d are fixed by components.operating_point, which
+    needs diagonal Psi(q) and dPsi/dq_k; coupled coils (a non-diagonal one) have no such rule, in the
+    controllers (Python and C) as here."""
+    if model.n_e <= model.n_m or (model.diagonal and model.psi_diagonal):
+        return ""
+    which = "dPsi/dq_k" if not model.diagonal else "Psi(q)"
+    return (f"{NO_OPERATING_POINT}: n_e = {model.n_e} > n_m = {model.n_m} with coupled coils ({which} not diagonal); "
+            "the operating-point rules (components.operating_point) need diagonal Psi(q) and dPsi/dq_k")
+
+
+def designs(assumptions: list[Verdict], setpoint: Verdict, reference: Verdict | None, q_d_given: bool,
+            no_operating_point: str = "") -> list[DesignVerdict]:
     """Proposition 1 needs Assumption 1 (then D_d = 0 satisfies eq. pHcondition strictly, R_m > 0);
     Proposition 2 needs Assumption 2 (D_d = 0 satisfies eq. pHcondition, R_m >= 0); Theorem 2 needs
     Assumption 3, Theorem 3 Assumption 4 (Theorem 1 (i)-(iii) then hold through the gains: K_e, D_d,
     Theta_1 / Theta_2, Section 5). A regulation design also needs an assignable set-point, a tracking
-    design a feasible reference, when one is given."""
+    design a feasible reference, when one is given; every design needs an operating point
+    (`no_operating_point`: why there is none, missing_operating_point), checked first."""
     out = []
     for name in DESIGNS:
+        if no_operating_point:
+            out.append(DesignVerdict(name, False, no_operating_point))
+            continue
         a = assumptions[int(ASSUMPTION_OF[name][-1]) - 1]
         tracking = name.startswith("Theorem")
         if tracking and reference is not None and reference.verdict == FAILS:
@@ -845,8 +865,15 @@ def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Any 
                                 why_not)]
     return Report(desc.name, desc.source, dict(model.values), q_list,
                   None if x_num is None else [float(x) for x in x_num], setpoint, ref_verdict, assumptions,
-                  designs(assumptions, setpoint, ref_verdict, q_list is not None), box_text,
-                  model.rule.describe([v.name for v in desc.x_e]) if model.n_e > model.n_m else "")
+                  designs(assumptions, setpoint, ref_verdict, q_list is not None, missing_operating_point(model)),
+                  box_text, _operating_point_text(model))
+
+
+def _operating_point_text(model: Model) -> str:
+    """The Report's operating-point line (n_e > n_m; "" otherwise)."""
+    if model.n_e <= model.n_m:
+        return ""
+    return missing_operating_point(model) or model.rule.describe([v.name for v in model.desc.x_e])
 
 
 def _constant(etas: list[np.ndarray]) -> Trajectory | None:

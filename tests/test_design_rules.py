@@ -59,3 +59,47 @@ def test_plant_scenario_names_the_missing_operating_point_not_the_reference(tmp_
     err = capsys.readouterr().err
     assert code != 0 and not (tmp_path / "scenario").exists()
     assert f"{path}: Theorem2 does not apply: no operating point" in err and "feasible" not in err
+
+
+SOLENOID = ROOT / "examples" / "solenoid" / "solenoid.toml"
+SOLENOID_ARGS = (ROOT / "examples" / "solenoid" / "scenario.args").read_text().split()
+# W = 1: the Schur complement of eq. (phi12) needs W > ~100 /H (solenoid.toml; tests/test_native_strict.py)
+PHI12 = "eq. (phi12): hess H_d(eta_d) > 0"
+
+
+def _scenario(tmp_path, *gains):
+    out = tmp_path / "scenario"
+    gain_args = [a for g in gains for a in ("--gain", g)]
+    return out, main(["plant", "scenario", str(SOLENOID), *SOLENOID_ARGS, *gain_args, "--out", str(out),
+                      "--fmu-dir", str(tmp_path / "fmus")])
+
+
+def test_a_weight_that_violates_phi12_is_refused_at_plant_scenario_as_the_ph_condition_is(tmp_path, capsys):
+    out, code = _scenario(tmp_path, "W=1")
+    err = capsys.readouterr().err
+    assert code != 0 and not out.exists()
+    assert f"Solenoid_Proposition1: the parameters violate Proposition 1's conditions: {PHI12}" in err
+    assert err.rstrip().endswith("(strict = 1)")
+    # eq. (pHcondition) has the same outcome: refused, nothing written (D_d far past sqrt(4 R_m R_e_bar))
+    out, code = _scenario(tmp_path, "D_d=1e6")
+    err = capsys.readouterr().err
+    assert code != 0 and not out.exists() and "pHcondition" in err
+
+
+def test_strict_0_writes_it_with_the_words_of_the_fmu_and_the_fmu_runs_anyway(tmp_path, capsys):
+    out, code = _scenario(tmp_path, "W=1", "strict=0")
+    err = capsys.readouterr().err
+    assert code == 0
+    warning = [line for line in err.splitlines() if line.startswith("emcosim: warning: ")]
+    assert len(warning) == 1 and PHI12 in warning[0] and warning[0].endswith("; running anyway (strict = 0)")
+    assert '<ssv:Parameter name="strict"><ssv:Integer value="0"/>' in (out / "controller.ssv").read_text()
+    # the scenario written by default carries strict = 1: the FMU refuses what plant scenario refused
+    out2, code = _scenario(tmp_path / "default")
+    assert code == 0 and '<ssv:Parameter name="strict"><ssv:Integer value="1"/>' in (out2 / "controller.ssv").read_text()
+
+
+def test_the_fmu_and_plant_scenario_say_it_in_one_wording():
+    """The controller FMU's initialization (fmus/controller.py) and plant scenario share
+    components.certificates.violation_text: no second wording."""
+    text = (ROOT / "fmus" / "controller.py").read_text()
+    assert "certificates.violation_text(" in text and "running anyway" not in text

@@ -646,14 +646,29 @@ def assumption_2(model: Model, structure: list[Test], q_d: list[float] | None, x
 
 
 def _scale(etas: list[np.ndarray], model: Model) -> np.ndarray:
-    """Per-state size of the target (as certificates.state_scale): max |eta*_i|; a momentum at rest gets
-    sqrt(M_ii x 1 N/m) max |q*|."""
+    """Per-state size of the target: max |eta*_i| over the sampled reference (its momenta p* = M(q*) q*'); a
+    momentum at rest along the whole reference (p*_i = 0: a set-point, or an axis that does not move) gets
+    sqrt(M_ii k_i) max |q*|, the momentum of an oscillation of amplitude max |q*| at the axis' own frequency,
+    with k_i = |d^2 H / dq_i^2| at eta* the device's stiffness there (its potential's and its electrical energy's
+    curvature; the largest k_j where that is 0; 1 in the state's units where all are 0)."""
     E = np.array(etas)
     s = np.max(np.abs(E), axis=0)
     m = model.n_m
-    M = np.asarray(model.numeric("M", model.desc.M, model.q)(*E[0, :m]), dtype=float).reshape(m, m)
-    s[m:2 * m] = np.maximum(s[m:2 * m], np.sqrt(np.diag(M)) * np.max(s[:m]))
+    at_rest = s[m:2 * m] == 0
+    if np.any(at_rest):
+        M = np.asarray(model.numeric("M", model.desc.M, model.q)(*E[0, :m]), dtype=float).reshape(m, m)
+        k = np.abs(np.diag(stiffness(model, E[0])))
+        k = np.where(np.isfinite(k) & (k > 0), k, np.max(k[np.isfinite(k)], initial=0.0) or 1.0)
+        s[m:2 * m] = np.where(at_rest, np.sqrt(np.diag(M) * k) * np.max(s[:m]), s[m:2 * m])
     return np.where(s > 0, s, 1.0)
+
+
+def stiffness(model: Model, eta: np.ndarray) -> np.ndarray:
+    """hess_q H at eta = (q, p, x_e): the device's stiffness (potential and electrical energy, eq. (H))."""
+    m = model.n_m
+    f = model.numeric("hess_q_H", hess_q_H(model), (*model.q, *model.p, *model.x))
+    with np.errstate(all="ignore"):
+        return np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(m, m)
 
 
 def sample_box(model: Model, etas: list[np.ndarray], box: float | Mapping[str, tuple[float, float]],
@@ -704,7 +719,7 @@ def box_contains(model: Model, box: Mapping[str, tuple[float, float]], etas: lis
 
 
 def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
-                 contains: Test | None = None) -> Verdict:
+                 contains: Test | None = None, box: str = "") -> Verdict:
     """R_m > 0 and alpha I < [[hess_q H, d_q grad_p H], [., M^-1]] < beta I on S (eq. cond1T2)."""
     v = Verdict("Assumption 3 (eq. cond1T2)", [R_m_test(model)] + ([contains] if contains else []))
     cond = "alpha I < [[hess_q H, d_q grad_p H], [., M^-1]] < beta I on S, 0 < alpha < beta"
@@ -737,7 +752,8 @@ def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
                             f"eta = {_numbers(bad[0])}: no sampled verdict"))
         return v
     v.tests.append(Test(cond, HOLDS if lo > 0 else FAILS, "numerically over S (see the box)",
-                        f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"))
+                        f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"
+                        + (f"; S: {box}" if box else "")))
     return v
 
 
@@ -860,7 +876,8 @@ def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Any 
     assumptions = [assumption_1(model, q_list, x_e_d, x_num),
                    assumption_2(model, structure, q_list, x_e_d, x_num),
                    assumption_3(model, points, why_not,
-                                box_contains(model, box, etas) if isinstance(box, Mapping) and etas else None),
+                                box_contains(model, box, etas) if isinstance(box, Mapping) and etas else None,
+                                box_text),
                    assumption_4(model, structure, trajectory if reference is not None else _constant(etas),
                                 why_not)]
     return Report(desc.name, desc.source, dict(model.values), q_list,

@@ -95,6 +95,7 @@ def controller(name: str, values: Mapping[str, float] = {}) -> Controller:
     if name not in GAINS:
         raise ValueError(f"unknown controller {name!r}; known: {sorted(GAINS)}")
     device = DEVICES[CONTROLLER_PLANT[name]]
+    values = {k: v for k, v in values.items() if k != "strict"}    # the FMU's own switch (fmus/controller.py), no gain
     plant_values, gain_values = _split(values, device.parameters, GAINS[name], owner=name)
     return device.controller(name[len(device.name) + 1:], {**plant_values, **gain_values})
 

@@ -703,6 +703,24 @@ def decay_bound_holds(Omega: np.ndarray, rate: float, t: np.ndarray, error: np.n
 
 # ---- the design alone: what a controller FMU checks at initialization ---------------------------
 
+class DesignConditionWarning(UserWarning):
+    """A controller's parameters violate a condition of its proposition or theorem and it runs anyway (strict = 0)."""
+
+
+def violated(controller: Controller, jet=None) -> list[Check]:
+    """The design checks (design_checks) that fail at the target: what strict = 1 refuses, strict = 0 warns of."""
+    return [c for c in design_checks(controller, jet) if c.verdict == FAILS]
+
+
+def violation_text(owner: str, controller: Controller, failed: list[Check], strict: int) -> str:
+    """The one wording of failed design checks, for the controller FMU's initialization (fmus/controller.py) and
+    `plant scenario` alike: refused with strict = 1, "running anyway" with strict = 0."""
+    text = (f"{owner}: the parameters violate {controller.name}'s conditions: "
+            + "; ".join(f"{c.name} ({', '.join(f'{k} = {v:.4g}' for k, v in c.numbers.items())})"
+                        + (f" [{c.note}]" if c.note else "") for c in failed))
+    return text + (" (strict = 1)" if strict else "; running anyway (strict = 0)")
+
+
 def design_checks(controller: Controller, jet=None) -> list[Check]:
     """The conditions of the controller's proposition or theorem that its parameters decide alone,
     at the target (eta_d, or eta*(t) of `jet`): cheap enough for an FMU's initialization.

@@ -39,6 +39,7 @@ NOT_DECIDED = "not decided"
 NOT_FINITE = "not finite"          # the start of the reason where a number of a numeric test overflowed
 ASSUMPTION_OF = {"Proposition1": "Assumption 1", "Proposition2": "Assumption 2",
                  "Theorem2": "Assumption 3", "Theorem3": "Assumption 4"}
+NO_OPERATING_POINT = "no operating point"   # how missing_operating_point's reason starts
 TIMES = 21          # sampled times of a reference
 SAMPLES = 32        # random points per sampled time in the box (besides its centre and vertices)
 RADIUS = 0.1        # default box: half-width RADIUS x the state's scale around eta*(t)
@@ -140,7 +141,9 @@ class Report:
                  "  parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in self.parameters.items()),
                  f"  numeric checks: {self.box}"]
         if self.operating_point:
-            lines.append(f"  operating point (n_e > n_m): {self.operating_point}; Assumptions 1-4 are tested there")
+            tested = ("no design can be built" if self.operating_point.startswith(NO_OPERATING_POINT)
+                      else "Assumptions 1-4 are tested there")
+            lines.append(f"  operating point (n_e > n_m): {self.operating_point}; {tested}")
         for v in [self.setpoint, self.reference, *self.assumptions]:
             if v is None:
                 continue
@@ -643,14 +646,29 @@ def assumption_2(model: Model, structure: list[Test], q_d: list[float] | None, x
 
 
 def _scale(etas: list[np.ndarray], model: Model) -> np.ndarray:
-    """Per-state size of the target (as certificates.state_scale): max |eta*_i|; a momentum at rest gets
-    sqrt(M_ii x 1 N/m) max |q*|."""
+    """Per-state size of the target: max |eta*_i| over the sampled reference (its momenta p* = M(q*) q*'); a
+    momentum at rest along the whole reference (p*_i = 0: a set-point, or an axis that does not move) gets
+    sqrt(M_ii k_i) max |q*|, the momentum of an oscillation of amplitude max |q*| at the axis' own frequency,
+    with k_i = |d^2 H / dq_i^2| at eta* the device's stiffness there (its potential's and its electrical energy's
+    curvature; the largest k_j where that is 0; 1 in the state's units where all are 0)."""
     E = np.array(etas)
     s = np.max(np.abs(E), axis=0)
     m = model.n_m
-    M = np.asarray(model.numeric("M", model.desc.M, model.q)(*E[0, :m]), dtype=float).reshape(m, m)
-    s[m:2 * m] = np.maximum(s[m:2 * m], np.sqrt(np.diag(M)) * np.max(s[:m]))
+    at_rest = s[m:2 * m] == 0
+    if np.any(at_rest):
+        M = np.asarray(model.numeric("M", model.desc.M, model.q)(*E[0, :m]), dtype=float).reshape(m, m)
+        k = np.abs(np.diag(stiffness(model, E[0])))
+        k = np.where(np.isfinite(k) & (k > 0), k, np.max(k[np.isfinite(k)], initial=0.0) or 1.0)
+        s[m:2 * m] = np.where(at_rest, np.sqrt(np.diag(M) * k) * np.max(s[:m]), s[m:2 * m])
     return np.where(s > 0, s, 1.0)
+
+
+def stiffness(model: Model, eta: np.ndarray) -> np.ndarray:
+    """hess_q H at eta = (q, p, x_e): the device's stiffness (potential and electrical energy, eq. (H))."""
+    m = model.n_m
+    f = model.numeric("hess_q_H", hess_q_H(model), (*model.q, *model.p, *model.x))
+    with np.errstate(all="ignore"):
+        return np.asarray(f(*eta[:2 * m], *eta[2 * m:]), dtype=float).reshape(m, m)
 
 
 def sample_box(model: Model, etas: list[np.ndarray], box: float | Mapping[str, tuple[float, float]],
@@ -701,7 +719,7 @@ def box_contains(model: Model, box: Mapping[str, tuple[float, float]], etas: lis
 
 
 def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
-                 contains: Test | None = None) -> Verdict:
+                 contains: Test | None = None, box: str = "") -> Verdict:
     """R_m > 0 and alpha I < [[hess_q H, d_q grad_p H], [., M^-1]] < beta I on S (eq. cond1T2)."""
     v = Verdict("Assumption 3 (eq. cond1T2)", [R_m_test(model)] + ([contains] if contains else []))
     cond = "alpha I < [[hess_q H, d_q grad_p H], [., M^-1]] < beta I on S, 0 < alpha < beta"
@@ -734,7 +752,8 @@ def assumption_3(model: Model, points: list[np.ndarray] | None, why_not: str,
                             f"eta = {_numbers(bad[0])}: no sampled verdict"))
         return v
     v.tests.append(Test(cond, HOLDS if lo > 0 else FAILS, "numerically over S (see the box)",
-                        f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"))
+                        f"alpha (sampled min eig) = {lo:.6g}, beta (sampled max eig) = {hi:.6g}"
+                        + (f"; S: {box}" if box else "")))
     return v
 
 
@@ -766,14 +785,31 @@ def assumption_4(model: Model, structure: list[Test], trajectory: Trajectory | N
 
 # ---- the designs -----------------------------------------------------------------------------------
 
-def designs(assumptions: list[Verdict], setpoint: Verdict, reference: Verdict | None, q_d_given: bool) -> list[DesignVerdict]:
+def missing_operating_point(model: Model) -> str:
+    """Why no design can fix the electrical operating point ("" where one can): for n_e > n_m the free
+    electrical coordinates of x_e* (Definition 1) and of x_e_d are fixed by components.operating_point, which
+    needs diagonal Psi(q) and dPsi/dq_k; coupled coils (a non-diagonal one) have no such rule, in the
+    controllers (Python and C) as here."""
+    if model.n_e <= model.n_m or (model.diagonal and model.psi_diagonal):
+        return ""
+    which = "dPsi/dq_k" if not model.diagonal else "Psi(q)"
+    return (f"{NO_OPERATING_POINT}: n_e = {model.n_e} > n_m = {model.n_m} with coupled coils ({which} not diagonal); "
+            "the operating-point rules (components.operating_point) need diagonal Psi(q) and dPsi/dq_k")
+
+
+def designs(assumptions: list[Verdict], setpoint: Verdict, reference: Verdict | None, q_d_given: bool,
+            no_operating_point: str = "") -> list[DesignVerdict]:
     """Proposition 1 needs Assumption 1 (then D_d = 0 satisfies eq. pHcondition strictly, R_m > 0);
     Proposition 2 needs Assumption 2 (D_d = 0 satisfies eq. pHcondition, R_m >= 0); Theorem 2 needs
     Assumption 3, Theorem 3 Assumption 4 (Theorem 1 (i)-(iii) then hold through the gains: K_e, D_d,
     Theta_1 / Theta_2, Section 5). A regulation design also needs an assignable set-point, a tracking
-    design a feasible reference, when one is given."""
+    design a feasible reference, when one is given; every design needs an operating point
+    (`no_operating_point`: why there is none, missing_operating_point), checked first."""
     out = []
     for name in DESIGNS:
+        if no_operating_point:
+            out.append(DesignVerdict(name, False, no_operating_point))
+            continue
         a = assumptions[int(ASSUMPTION_OF[name][-1]) - 1]
         tracking = name.startswith("Theorem")
         if tracking and reference is not None and reference.verdict == FAILS:
@@ -840,13 +876,21 @@ def check(desc: Any, q_d: float | Sequence[float] | None = None, reference: Any 
     assumptions = [assumption_1(model, q_list, x_e_d, x_num),
                    assumption_2(model, structure, q_list, x_e_d, x_num),
                    assumption_3(model, points, why_not,
-                                box_contains(model, box, etas) if isinstance(box, Mapping) and etas else None),
+                                box_contains(model, box, etas) if isinstance(box, Mapping) and etas else None,
+                                box_text),
                    assumption_4(model, structure, trajectory if reference is not None else _constant(etas),
                                 why_not)]
     return Report(desc.name, desc.source, dict(model.values), q_list,
                   None if x_num is None else [float(x) for x in x_num], setpoint, ref_verdict, assumptions,
-                  designs(assumptions, setpoint, ref_verdict, q_list is not None), box_text,
-                  model.rule.describe([v.name for v in desc.x_e]) if model.n_e > model.n_m else "")
+                  designs(assumptions, setpoint, ref_verdict, q_list is not None, missing_operating_point(model)),
+                  box_text, _operating_point_text(model))
+
+
+def _operating_point_text(model: Model) -> str:
+    """The Report's operating-point line (n_e > n_m; "" otherwise)."""
+    if model.n_e <= model.n_m:
+        return ""
+    return missing_operating_point(model) or model.rule.describe([v.name for v in model.desc.x_e])
 
 
 def _constant(etas: list[np.ndarray]) -> Trajectory | None:

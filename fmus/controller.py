@@ -87,15 +87,12 @@ class ControllerSlave(EMSlave):
         strict = self.values["strict"]                               # (a ValueError names the parameter)
         if strict not in (0, 1):
             raise ValueError(f"parameter strict = {strict} violates strict in {{0, 1}}")
-        failed = [c for c in certificates.design_checks(controller, self.input_jet(controller))
-                  if c.verdict == certificates.FAILS]
+        failed = certificates.violated(controller, self.input_jet(controller))
         if failed:
-            message = (f"{self.model_identifier}: the parameters violate {controller.name}'s conditions: "
-                       + "; ".join(f"{c.name} ({', '.join(f'{k} = {v:.4g}' for k, v in c.numbers.items())})"
-                                   + (f" [{c.note}]" if c.note else "") for c in failed))
+            message = certificates.violation_text(self.model_identifier, controller, failed, int(strict))
             if strict:
-                raise ValueError(message + " (strict = 1)")
-            self.log(message + "; running anyway (strict = 0)", Fmi2Status.warning)
+                raise ValueError(message)
+            self.log(message, Fmi2Status.warning)
         self.controller, self._u, self._u_vector = controller, None, None
 
     def input_jet(self, controller: Controller) -> Jet | None:

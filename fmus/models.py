@@ -127,8 +127,8 @@ def module_device(module: ModuleType, designs: Sequence[str] | None = None) -> D
 def default_initial_state(device: Device, q_d: Sequence[float] | None = None) -> tuple[float, ...]:
     """A plant FMU's start values of q_0, p_0, x_e_0 when the device module gives none (INITIAL_STATE): the
     equilibrium eta_d = (q_d, 0, x_e_d) (EMPlant.equilibrium) at `q_d` (a description's [controller] q_d, whether
-    or not a regulation design applies), else at the default q_d of the first regulation design, else eta = 0;
-    ValueError if that is not admissible (check_state)."""
+    or not a regulation design applies), else at the default q_d of the first regulation design, else eta = 0, else
+    the plant at rest and unenergized at `q_d`; ValueError if none is admissible (check_state)."""
     plant = device.plant()
     if q_d is not None:
         try:
@@ -146,8 +146,16 @@ def default_initial_state(device: Device, q_d: Sequence[float] | None = None) ->
     try:
         plant.check_state(eta)
     except ValueError as exc:
-        raise ValueError(f"{device.name}: eta = 0 is not admissible ({exc}) and no regulation design gives an "
-                         "equilibrium: give the device module an INITIAL_STATE") from None
+        if q_d is None:
+            raise ValueError(f"{device.name}: eta = 0 is not admissible ({exc}) and no regulation design gives an "
+                             "equilibrium: give the device module an INITIAL_STATE") from None
+        eta[:device.n_m] = np.asarray(q_d, dtype=float)     # at rest and unenergized at q_d (no equilibrium there:
+        try:                                                # coupled coils with n_e > n_m have no operating point)
+            plant.check_state(eta)
+        except ValueError as exc_q_d:
+            raise ValueError(f"{device.name}: neither eta = 0 ({exc}) nor the plant at rest at q_d ({exc_q_d}) is "
+                             "admissible and no regulation design gives an equilibrium: give the device module an "
+                             "INITIAL_STATE") from None
     return tuple(eta.tolist())
 
 

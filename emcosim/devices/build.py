@@ -148,7 +148,10 @@ def scenario_of(description: str | Path, out: str | Path, controller: str, stop_
     from .scenario import Setup, scenario_files
 
     out = Path(out)
-    desc, _, device = registry.load(description)
+    desc, report, device = registry.load(description)
+    refused = {d.name: d.reason for d in report.design_verdicts if not d.applies}
+    if controller in refused:                           # the check's reason, not a later symptom (issue 42)
+        raise ValueError(f"{desc.source}: {controller} does not apply: {refused[controller]}")
     chosen = dict(gains or {})
     chosen.update(q_d_gains(device, q_d))
     setup = Setup(controller, stop_time, step_size, gains=chosen, references=list(references),

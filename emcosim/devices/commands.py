@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 from components.device import DESIGNS
@@ -78,7 +79,9 @@ def add_parser(sub) -> None:
                       help="initial electrical states (default: those of the equilibrium at q0, x_e = 0 where the "
                            "potential holds q0 alone)")
     scen.add_argument("--gain", action="append", default=[], metavar="NAME=VALUE",
-                      help="a gain of the controller (repeatable; default: the description's)")
+                      help="a gain of the controller (repeatable; default: the description's); strict=0 writes a "
+                           "scenario whose gains violate a condition of the design (warned), strict=1 (the default) "
+                           "refuses it, here and at the controller's initialization")
     scen.add_argument("--name", help="scenario name (default: the folder's name, so that `emcosim run DIR` writes DIR.csv)")
     scen.add_argument("--operating-point", metavar="RULE", help=OPERATING_POINT_HELP)
     scen.set_defaults(func=cmd_scenario)
@@ -145,18 +148,23 @@ def cmd_build(args) -> int:
 
 
 def cmd_scenario(args) -> int:
+    from components.certificates import DesignConditionWarning
+
     from .build import description_file, scenario_of
     from .scenario import gain_values
 
     out = Path(args.out)
     try:
-        with description_file(args.file, args.operating_point) as file:
+        with description_file(args.file, args.operating_point) as file, warnings.catch_warnings(record=True) as warned:
+            warnings.simplefilter("always", DesignConditionWarning)
             files, fmu_dir, missing = scenario_of(file, out, args.controller, args.stop_time, args.step_size,
                                                   fmu_dir=args.fmu_dir, q_d=args.q_d,
                                                   references=_references(args.reference), q0=args.q0, p0=args.p0,
                                                   x_e0=args.x_e0, gains=dict(gain_values(args.gain)), name=args.name)
     except ValueError as exc:
         raise _describe(exc) from None
+    for w in warned:
+        print(f"emcosim: warning: {w.message}", file=sys.stderr)
     print(f"scenario    {out} ({', '.join(sorted(files))}); run it with `emcosim run {out}`")
     if args.step_size is None:
         print(f"step        {_chosen_step(files['SystemStructure.ssd'])}")

@@ -13,13 +13,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from components import catalog
+from components import catalog, certificates
 from components.device import Device, VariableSpec
 from components.operating_point import switches
 from components.ph_plant import Jet
@@ -232,9 +233,12 @@ def _design(device: Device, setup: Setup) -> tuple:
         raise ValueError(f"step size {setup.step_size} must be finite, > 0 and at most the stop time")
     design = device.designs[setup.design]
     identifier = device.controller_identifier(setup.design)
-    unknown = set(setup.gains) - set(design.gains)
+    unknown = set(setup.gains) - set(design.gains) - {"strict"}
     if unknown:
         raise ValueError(f"{identifier}: unknown gain(s) {sorted(unknown)}; its gains: {sorted(design.gains)}")
+    strict = setup.gains.get("strict", 1)
+    if strict not in (0, 1):
+        raise ValueError(f"{identifier}: strict = {strict} must be 0 (warn and run) or 1 (refuse)")
     gains = {name: float(setup.gains.get(name, spec.default)) for name, spec in design.gains.items()}
     controller = device.controller(setup.design, gains)                  # checks the gains
     if not design.tracking and setup.references:
@@ -253,7 +257,22 @@ def _design(device: Device, setup: Setup) -> tuple:
     why = switches(list(times), branches, [v.name for v in device.x_e])
     if why:
         raise ValueError(f"the reference is not feasible with the operating-point rule: {why}")
-    return controller, gains, references
+    check_conditions(identifier, controller, stacked_jet(references, 0.0) if references else None, int(strict))
+    return controller, {**gains, "strict": int(strict)}, references
+
+
+def check_conditions(identifier: str, controller: Any, jet: Any, strict: int) -> None:
+    """The design's conditions that its parameters decide (components.certificates.design_checks), at the point
+    and in the words of the controller FMU's initialization: with strict = 1 (a scenario's default) a violation
+    is refused (ValueError) as eq. (pHcondition) is by the controller's construction, with strict = 0 it is a
+    DesignConditionWarning and the scenario's controller runs anyway (issue 42: one rule for every condition)."""
+    failed = certificates.violated(controller, jet)
+    if not failed:
+        return
+    text = certificates.violation_text(identifier, controller, failed, strict)
+    if strict:
+        raise ValueError(text)
+    warnings.warn(certificates.DesignConditionWarning(text), stacklevel=2)
 
 
 def _parameter_sets(device: Device, setup: Setup, gains: Mapping[str, float], eta_0: np.ndarray) -> dict[str, str]:
@@ -269,7 +288,10 @@ def _parameter_sets(device: Device, setup: Setup, gains: Mapping[str, float], et
     controller = [Parameter(p.name, p.type, p.value, p.unit, f"plant parameter (same as plant.ssv): {p.description}")
                   for p in plant]
     controller += [Parameter(k, "Real", v, design.gains[k].unit, parameter_doc(design.gains[k].unit, design.gains[k].description))
-                   for k, v in gains.items()]
+                   for k, v in gains.items() if k != "strict"]
+    controller.append(Parameter("strict", "Integer", int(gains["strict"]), None,
+                                "1: refuse to initialize when the parameters violate a condition of the design, "
+                                "0: warn and run (as `plant scenario` did)"))
     files = {"plant.ssv": parameter_set_xml(PARAMETER_SET, plant + start + [rtol]),
              "controller.ssv": parameter_set_xml(PARAMETER_SET, controller)}
     codes = {kind: code for code, kind in catalog.REFERENCE_KINDS.items()}

@@ -130,7 +130,8 @@ def run_fuzzer(exe: Path, target: str, work: Path, seconds: int, seed: int = 1, 
     corpus.mkdir(parents=True, exist_ok=True)
     artifacts.mkdir(parents=True, exist_ok=True)
     command = [str(exe), f"-max_total_time={seconds}", f"-seed={seed}", "-timeout=20", "-rss_limit_mb=2048",
-               "-max_len=4096", f"-dict={HERE / 'fmi.dict'}", "-print_final_stats=1", f"-artifact_prefix={artifacts}/", *extra, str(corpus),
+               "-max_len=4096", f"-dict={HERE / 'fmi.dict'}", "-print_final_stats=1",
+               f"-artifact_prefix={artifacts}/", *extra, str(corpus),
                str(CORPUS / target)]
     run = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 300,
                          env={"ASAN_OPTIONS": "detect_leaks=1:abort_on_error=1:symbolize=1",

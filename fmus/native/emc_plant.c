@@ -558,7 +558,9 @@ static int integrate(const emc_plant *m, const emc_poly *P, const double *start,
                      char *why, size_t size)
 {
     const double *s = m->scale;
-    double y[EMC_N], y_new[EMC_N], err[EMC_N], eta[EMC_N];
+    /* y_new and err are zeroed only for gcc -fanalyzer (gcc 12), which does not follow rodas4's filling them
+       before it returns 1 and reports a use of uninitialized values (tests/test_static_analysis.py) */
+    double y[EMC_N], y_new[EMC_N] = {0.0}, err[EMC_N] = {0.0}, eta[EMC_N];
     const double rtol = integration_tolerance(m), h_min = 1e-13 * h;
     double t = 0.0, hs = (m->h_next > 0.0 && m->h_next < h) ? m->h_next : h;
     int n = 0, k;

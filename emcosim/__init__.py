@@ -22,6 +22,8 @@ from .api import (  # noqa: E402 - after __version__, which the build reads
     default_record,
     figure,
     find_scenario,
+    linearize,
+    linearize_fmu,
     load_scenario,
     paper_fmu_dir,
     run,
@@ -34,5 +36,5 @@ from .api import (  # noqa: E402 - after __version__, which the build reads
 
 __all__ = ["__version__", "Result", "ResultNotAccepted", "ResultNotAcceptedWarning",
            "RunOptions", "Scenario", "build_plant", "certify", "check_plant",
-           "default_record", "figure", "find_scenario", "load_scenario", "paper_fmu_dir", "run", "scenario_dirs",
-           "scenario_names", "sweep", "units_of", "write_scenario"]
+           "default_record", "figure", "find_scenario", "linearize", "linearize_fmu", "load_scenario", "paper_fmu_dir",
+           "run", "scenario_dirs", "scenario_names", "sweep", "units_of", "write_scenario"]

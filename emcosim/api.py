@@ -40,7 +40,7 @@ from .engine.verdict import ResultNotAcceptedWarning
 __all__ = ["ResultNotAccepted", "ResultNotAcceptedWarning",
            "RunOptions", "Result", "Scenario", "scenario_dirs", "scenario_names", "find_scenario", "load_scenario",
            "default_record", "run", "figure", "paper_fmu_dir", "check_plant", "build_plant", "write_scenario", "write_folder",
-           "certify", "sweep", "units_of"]
+           "certify", "sweep", "units_of", "linearize", "linearize_fmu", "linearization", "statespace"]
 
 
 # ---- scenarios -----------------------------------------------------------------------------------
@@ -383,6 +383,101 @@ def sweep(scenario: Scenario | str | Path, grid: Sequence[tuple[str, Sequence[fl
         from .paper.sweep import metrics_of as metrics
     points = [(n, [float(v) for v in values]) for n, values in grid]
     return sweeps.sweep(scenario, points, options=options, metrics=metrics, **settings)
+
+
+# ---- linearization for python-control (issue 41) ---------------------------------------------------
+
+def linearization(scenario: Scenario | str | Path, t: float = 0.0, at="reference", inputs: Sequence[str] = (),
+                  outputs: Sequence[str] | None = None, start_values: Mapping[str, str | float] | None = None):
+    """The closed loop's linearization x' = A x + B w, z = C x + D w at time t [s] (engine.linearization:
+    A, B, C, D, the state and time it was taken at, the names and units), from the FMUs' directional
+    derivatives. `at`: "reference" (the state where the loop sits on its reference at t: eta*(t), or eta_d for
+    regulation; paper.linearization.reference_state), "start" (the scenario's initial state) or a mapping
+    {"plant.q": value, ...} (states not named keep their initial values). `inputs`: variables a disturbance w
+    is added to (an input such as "plant.u", or an output such as the reference's "reference.q_star");
+    `outputs`: states, outputs or inputs to observe (default: the states).
+
+    >>> lin = linearization("maglev_regulation_prop2")
+    >>> lin.states, [round(float(v), 6) for v in lin.x]
+    (['plant.q', 'plant.p', 'plant.x_e'], [0.0025, 0.0, 1.029823])
+    """
+    from .engine.errors import ScenarioError
+    from .engine.linearization import linearize as engine_linearize
+
+    scenario = _scenario(scenario)
+    if isinstance(at, str):
+        if at == "reference":
+            from .paper.linearization import reference_state
+
+            state = reference_state(scenario, t)
+        elif at == "start":
+            state = None
+        else:
+            raise ScenarioError(f"at = {at!r}: expected 'reference', 'start' or a mapping of state values")
+    else:
+        state = {str(k): float(v) for k, v in dict(at).items()}
+    return engine_linearize(scenario, t, state, list(inputs), None if outputs is None else list(outputs), start_values)
+
+
+def signal_name(name: str) -> str:
+    """A variable's name as a python-control signal name: '.' (reserved there for "system.signal") becomes '_'
+    ("plant.u" -> "plant_u"); state names keep theirs ("plant.q").
+
+    >>> signal_name("reference.q_star")
+    'reference_q_star'
+    """
+    return name.replace(".", "_")
+
+
+def statespace(lin, name: str = ""):
+    """A linearization (`linearization`, `linearize_fmu`'s) as a control.StateSpace, its states, inputs and
+    outputs named (`signal_name`).
+
+    >>> sys = statespace(linearization("maglev_regulation_prop2", inputs=["plant.u"]))
+    >>> sys.nstates, sys.input_labels
+    (3, ['plant_u'])
+    """
+    import control as ct
+
+    labels = {}
+    for kind, names in (("input", lin.inputs), ("output", lin.outputs)):
+        labels[kind] = [signal_name(n) for n in names]
+        if len(set(labels[kind])) != len(names):
+            raise ValueError(f"{kind} names {names} are not distinct as python-control signal names {labels[kind]}")
+    return ct.ss(lin.A, lin.B, lin.C, lin.D, states=list(lin.states), inputs=labels["input"],
+                 outputs=labels["output"], name=signal_name(name) or None)
+
+
+def linearize(scenario: Scenario | str | Path, t: float = 0.0, at="reference", inputs: Sequence[str] = (),
+              outputs: Sequence[str] | None = None, start_values: Mapping[str, str | float] | None = None):
+    """The closed loop as a control.StateSpace at time t and state `at` (arguments: `linearization`): poles,
+    Bode plots, margins with python-control.
+
+    >>> import control as ct
+    >>> sys = linearize("maglev_tracking_D-1_R0.82", inputs=["plant.u"], outputs=["plant.q"])
+    >>> sys.state_labels, sys.input_labels, sys.output_labels
+    (['plant.q', 'plant.p', 'plant.x_e'], ['plant_u'], ['plant_q'])
+    >>> bool(all(sys.poles().real < 0))                  # on the reference the loop is exponentially stable
+    True
+    """
+    scenario = _scenario(scenario)
+    return statespace(linearization(scenario, t, at, inputs, outputs, start_values), scenario.name)
+
+
+def linearize_fmu(path: str | Path, at: Mapping[str, float] | None = None, inputs: Sequence[str] | None = None,
+                  outputs: Sequence[str] | None = None, t: float = 0.0,
+                  parameters: Mapping[str, str | float] | None = None):
+    """One FMU (a plant) alone at an operating point as a control.StateSpace: `at` gives state and input values
+    by variable name ({"q": ..., "u": ...}; the rest keep their start values), `parameters` override parameters;
+    `inputs` default to every Real input, `outputs` to every Real output.
+
+    >>> sys = linearize_fmu(paper_fmu_dir() / "Maglev.fmu", at={"q": 0.0025, "x_e": 1.029823}, outputs=["q"])
+    >>> sys.input_labels, sorted(round(float(s.real), 3) for s in sys.poles())   # open loop: one unstable pole
+    (['u'], [-2.053, -2.053, 4.097])
+    """
+    from .engine.linearization import linearize_fmu as engine_linearize_fmu
+
+    return statespace(engine_linearize_fmu(path, at, inputs, outputs, t, parameters), Path(path).stem)
 
 
 def _examples() -> Path:

@@ -6,6 +6,8 @@
     emcosim info [SCENARIO ...]
     emcosim reproduce [--out DIR]
     emcosim certify SCENARIO [--radius R] [--include-start] [--json FILE]
+    emcosim linearize SCENARIO [--t T] [--at reference|start|NAME=VALUE,...] [--inputs a.u,...] [--outputs a.y,...]
+                               [--out FILE.json]
 
 SCENARIO is a scenario name (a folder of scenarios/), a folder holding SystemStructure.ssd, an
 .ssd file or an .ssp archive. Errors are reported on one line; the exit status is then 1 (2 for
@@ -206,6 +208,24 @@ def _parser() -> argparse.ArgumentParser:
     cert.add_argument("--json", help="also write the certificate as JSON to this file")
     cert.set_defaults(func=cmd_certify)
 
+    lin = sub.add_parser("linearize", help="the closed loop's A, B, C, D and poles at its reference (or start) state",
+                         parents=[ssp])
+    lin.add_argument("scenario")
+    lin.add_argument("--t", type=float, default=0.0, help="time [s] of the reference state (default 0)")
+    lin.add_argument("--at", default="reference", metavar="reference|start|NAME=VALUE,...",
+                     help="the state: on the reference at --t (default), the initial state, or values of states "
+                          "(e.g. plant.q=0.002,plant.p=0; the others keep their initial values)")
+    lin.add_argument("--inputs", default="", metavar="A.U,...",
+                     help="variables a disturbance is added to, for B and D (inputs such as plant.u, or outputs such "
+                          "as reference.q_star)")
+    lin.add_argument("--outputs", default=None, metavar="A.Y,...",
+                     help="states, outputs or inputs observed, for C and D (default: the states)")
+    lin.add_argument("--set", action="append", default=[], metavar="COMPONENT.VARIABLE=VALUE",
+                     help="override a parameter or start value (repeatable)")
+    lin.add_argument("--fmu-dir", help="take every FMU from this folder (by file name)")
+    lin.add_argument("--out", help="also write the linearization as JSON to this file")
+    lin.set_defaults(func=cmd_linearize)
+
     sw = sub.add_parser("sweep", help="run a scenario over a parameter grid (and random plant samples) on Dask; "
                                       "table and plots of the metrics", parents=[ssp])
     sw.add_argument("scenario")
@@ -310,12 +330,7 @@ def cmd_run(args) -> int:
     options = run_options(args)                   # every setting checked before anything is read
     threshold = _error_threshold(args.error_threshold)
     scenario = _read(args.scenario, args.fmu_dir, args)
-    start_values = {}
-    for item in args.set:
-        name, sep, value = item.partition("=")
-        if not sep or "." not in name:
-            raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
-        start_values[name.strip()] = value.strip()
+    start_values = _start_values(args.set)
     record = [r.strip() for r in args.record.split(",") if r.strip()] if args.record else None
     output = Path(args.output or f"{scenario.name}.csv")
     if args.plot:
@@ -550,6 +565,55 @@ def cmd_certify(args) -> int:
     if status:
         print(f"emcosim: {why} (exit status {status}, docs/cli.md)", file=sys.stderr)
     return status
+
+
+def _start_values(items: list[str]) -> dict[str, str]:
+    """--set COMPONENT.VARIABLE=VALUE (repeatable) as start values."""
+    start_values = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or "." not in name:
+            raise ScenarioError(f"--set {item}: expected COMPONENT.VARIABLE=VALUE")
+        start_values[name.strip()] = value.strip()
+    return start_values
+
+
+def _names(text: str | None) -> list[str] | None:
+    return None if text is None else [n.strip() for n in text.split(",") if n.strip()]
+
+
+def _at(text: str):
+    """--at: 'reference', 'start' or NAME=VALUE,... (a mapping of state values)."""
+    if text in ("reference", "start"):
+        return text
+    state = {}
+    for item in text.split(","):
+        name, sep, value = item.partition("=")
+        try:
+            state[name.strip()] = float(value)
+        except ValueError:
+            raise ScenarioError(f"--at {text!r}: expected reference, start or NAME=VALUE,... ({item!r} is not "
+                                "NAME=VALUE with a number)") from None
+        if not sep or not name.strip():
+            raise ScenarioError(f"--at {text!r}: {item!r} is not NAME=VALUE")
+    return state
+
+
+def cmd_linearize(args) -> int:
+    from .api import linearization
+    from .engine.outputs import check_destination, write_file
+
+    if args.out:
+        check_destination(Path(args.out))          # before the FMUs are loaded: no link, a writable place
+    scenario = _read(args.scenario, args.fmu_dir, args)
+    lin = linearization(scenario, t=args.t, at=_at(args.at), inputs=_names(args.inputs) or [],
+                        outputs=_names(args.outputs), start_values=_start_values(args.set))
+    print(lin.report(scenario.name))
+    if args.out:
+        data = lin.to_json().encode("utf-8")
+        write_file(Path(args.out), lambda f: f.write(data))
+        print(f"linearization written to {args.out}")
+    return 0
 
 
 def cmd_sweep(args) -> int:

@@ -39,8 +39,8 @@ from .engine.verdict import ResultNotAcceptedWarning
 
 __all__ = ["ResultNotAccepted", "ResultNotAcceptedWarning",
            "RunOptions", "Result", "Scenario", "scenario_dirs", "scenario_names", "find_scenario", "load_scenario",
-           "default_record", "run", "figure", "paper_fmu_dir", "check_plant", "build_plant", "write_scenario", "write_folder",
-           "certify", "sweep", "units_of", "linearize", "linearize_fmu", "linearization", "statespace"]
+           "default_record", "settings", "run", "figure", "paper_fmu_dir", "check_plant", "build_plant", "write_scenario",
+           "write_folder", "certify", "sweep", "units_of", "linearize", "linearize_fmu", "linearization", "statespace"]
 
 
 # ---- scenarios -----------------------------------------------------------------------------------
@@ -118,6 +118,22 @@ def load_scenario(name: str | Path, fmu_dir: str | Path | None = None, limits=No
 
     ssd = find_scenario(name, limits)
     return read_scenario(ssd, fmu_dir=fmus_of(ssd, fmu_dir), limits=limits)
+
+
+def settings(scenario: Scenario | str | Path):
+    """What a scenario sets, each value beside the default it replaces: (the experiment's start, stop time, step
+    size and coupling beside the FMUs' DefaultExperiment; per component, every parameter and unconnected input
+    with the scenario's value beside the FMU's start value), as `emcosim.engine.binding.Setting`s (`differs`).
+    Needs the scenario's FMUs (their modelDescriptions hold the defaults).
+
+    >>> experiment, components = settings("maglev_tracking_D-1_R0.82")
+    >>> [(s.name, s.value, s.default, s.differs) for s in components["plant"] if s.name == "plant.q_0"]
+    [('plant.q_0', 0.0015, 0.0025, True)]
+    """
+    from .engine import binding
+
+    s = _scenario(scenario)
+    return binding.settings(s, binding.load(s))
 
 
 def _scenario(scenario: Scenario | str | Path) -> Scenario:

@@ -510,10 +510,14 @@ def cmd_info(args) -> int:
         for c in s.components:
             print(f"      {c.name}: {c.source.name}" + (f" ({c.description})" if c.description else ""))
             fmus.setdefault(c.source, c.name)
-    print("FMUs:")
+    if args.scenario and all(source.is_file() for source in fmus):
+        for s in scenarios:
+            _print_settings(s)
+        return 0
+    print("FMUs:" + ("" if args.scenario else " (their defaults; `emcosim info SCENARIO` shows what a scenario sets)"))
     for source in fmus:
         if not source.is_file():
-            print(f"  {source}: not built (`emcosim reproduce` or `python -m fmus.build` builds the paper's FMUs)")
+            print(f"  {source}: not built (`emcosim build` builds the paper's FMUs)")
             continue
         md = read_model_description(str(source), validate=False)
         print(f"  {source.name}: {md.modelName}, FMI {md.fmiVersion}" + (f" - {md.description}" if md.description else ""))
@@ -523,6 +527,44 @@ def cmd_info(args) -> int:
             desc = f"  {v.description}" if v.description else ""
             print(f"      {v.causality:<10} {v.type:<8} {v.name}{unit}{start}{desc}")
     return 0
+
+
+def _print_settings(scenario) -> None:
+    """`info SCENARIO`: what the scenario sets, each value beside its FMU's default, '*' where they differ; then
+    each component's other variables."""
+    from fmpy import read_model_description
+
+    from .api import settings
+
+    experiment, components = settings(scenario)
+    print(f"{scenario.name}: the values it sets ('*': differs from the FMU's default)")
+    for s in experiment:
+        print("  " + _setting_line(s, s.name))
+    for comp in scenario.components:
+        md = read_model_description(str(comp.source), validate=False)
+        print(f"  {comp.name} ({comp.source.name}: {md.modelName}, FMI {md.fmiVersion}):")
+        described = {v.name: v for v in md.modelVariables}
+        for s in components[comp.name]:
+            var = described[s.name.partition(".")[2]]
+            desc = f"  {var.description}" if var.description else ""
+            print(f"    {var.causality:<10} {var.type:<8} " + _setting_line(s, var.name) + desc)
+        shown = {s.name.partition(".")[2] for s in components[comp.name]}
+        for v in md.modelVariables:
+            if v.name not in shown:
+                unit = f" [{v.unit or (v.declaredType.unit if v.declaredType else '')}]" if (v.unit or v.declaredType) else ""
+                desc = f"  {v.description}" if v.description else ""
+                connected = " (connected)" if v.causality == "input" else ""
+                print(f"    {v.causality:<10} {v.type:<8} {v.name}{unit}{connected}{desc}")
+
+
+def _setting_line(s, name: str) -> str:
+    """`* name [unit] = value (FMU default: d)`, the mark and the default only where they differ."""
+    unit = f" [{s.unit}]" if s.unit else ""
+    value = "not set" if s.value is None else str(s.value)
+    if not s.differs:
+        return f"  {name}{unit} = {value}"
+    default = "none" if s.default is None else str(s.default)
+    return f"* {name}{unit} = {value}  (FMU default: {default})"
 
 
 def cmd_reproduce(args) -> int:

@@ -165,3 +165,44 @@ def test_exported_loop_has_units(fmu_dir, tmp_path):
     assert units["plant.q"] == "m" and units["plant.x_e"] == "Wb" and units["controller.u"] == "V"
     assert all(units[f"plant.{n}"] == plant[n] for n in ("q", "p", "x_e", "H", "m", "k"))
     assert {u.name for u in md.unitDefinitions} >= {"m", "Wb", "V", "J"}
+
+
+def test_info_of_a_scenario_shows_its_values_beside_the_fmus_defaults(fmu_dir, capsys):
+    """Issue 41 item 3: `info SCENARIO` lists what the scenario sets (from its .ssv files and .ssd, read here
+    with ElementTree), each beside the FMU's start value (read with fmpy), '*' where they differ; a value the
+    scenario does not change is shown once, unmarked."""
+    import xml.etree.ElementTree as ET
+
+    from fmpy import read_model_description
+
+    folder = ROOT / "scenarios" / "maglev_tracking_D-1_R0.82"
+    ssv = {}
+    for name in ("plant", "controller"):
+        for p in ET.parse(folder / f"{name}.ssv").getroot().iter("{http://ssp-standard.org/SSP1/SystemStructureParameterValues}Parameter"):
+            ssv[f"{name}.{p.get('name')}"] = float(next(iter(p)).get("value"))
+    defaults = {f"{comp}.{v.name}": float(v.start) for comp, fmu in (("plant", "Maglev"), ("controller", "Maglev_Theorem3"))
+                for v in read_model_description(str(fmu_dir / f"{fmu}.fmu")).modelVariables
+                if v.causality == "parameter" and v.type == "Real"}
+    assert (ssv["plant.q_0"], ssv["plant.rtol"], ssv["controller.R_e_bar"]) == (0.0015, 1e-06, 0.82)
+    assert main(["info", "maglev_tracking_D-1_R0.82", "--fmu-dir", str(fmu_dir)]) == 0
+    out = capsys.readouterr().out
+    for full in ("plant.q_0", "plant.rtol", "controller.R_e_bar", "controller.D_d"):
+        name = full.partition(".")[2]
+        assert ssv[full] != defaults[full]
+        assert f"* {name} [" in out and f"= {ssv[full]!r}  (FMU default: {defaults[full]!r})" in out, full
+    assert f"  R_e [Ohm] = {ssv['plant.R_e']!r}  coil resistance" in out            # the same as the default
+    assert "* stop time [s] = 40.0" in out and "* step size [s] = 0.0125" in out
+    assert "R_e_bar [Ohm] = 2.82" not in out                       # the FMU default is no longer shown as the value
+
+
+def test_settings_api_is_what_info_prints(fmu_dir):
+    """emcosim.settings: the library part of `info SCENARIO` (the CLI only prints it)."""
+    import emcosim
+
+    experiment, components = emcosim.settings(emcosim.load_scenario("maglev_tracking_D-1_R0.82", fmu_dir))
+    by_name = {s.name: s for rows in components.values() for s in rows}
+    assert (by_name["controller.R_e_bar"].value, by_name["controller.R_e_bar"].default) == (0.82, 2.82)
+    assert by_name["controller.R_e_bar"].differs and not by_name["plant.R_e"].differs
+    assert by_name["controller.strict"].source is None and by_name["plant.q_0"].source.endswith("plant.ssv")
+    assert "plant.u" not in by_name                                # connected: the master sets it
+    assert [s.name for s in experiment] == ["start time", "stop time", "step size", "coupling"]

@@ -293,3 +293,76 @@ def _check_settable(var, where: _Where, inst: Instance, source: str | None = Non
     if var.causality == "input" and source is not None:
         raise where.error(f"input is connected (fed by {source}); the master sets it from the "
                           "connection, a start value would be ignored")
+
+
+# ---- what a scenario sets, beside its FMUs' defaults (`emcosim info SCENARIO`) ------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One value a run of the scenario starts from, beside the default it replaces: a parameter or a start value
+    of a component (default: the FMU's declared start), or the experiment's start, stop time, step and coupling
+    (default: the FMUs' DefaultExperiment, explicit coupling). `source` is the file that sets it (None: nothing
+    does, the default holds)."""
+
+    name: str                 # "plant.q_0", or "stop time", "step size", "start time", "coupling"
+    unit: str | None
+    value: Any                # what the run uses (None: nothing declared)
+    default: Any              # what it would be without the scenario (None: nothing declared)
+    source: str | None
+
+    @property
+    def differs(self) -> bool:
+        """True where the scenario's value is not the default (numbers compared to 1e-12 relative)."""
+        a, b = _number(self.value), _number(self.default)
+        if a is not None and b is not None:
+            return not math.isclose(a, b, rel_tol=1e-12, abs_tol=0.0)
+        return self.value != self.default
+
+
+def settings(scenario: Scenario, instances: dict[str, Instance]) -> tuple[list[Setting], dict[str, list[Setting]]]:
+    """(the experiment's settings, per component every parameter and unconnected input with the value the
+    scenario gives it and the FMU's start value), all checked as a run checks them (`parameter_values`)."""
+    values = parameter_values(scenario, instances, {})
+    fed = {c.end for c in scenario.connections}
+    variables: dict[str, list[Setting]] = {}
+    for comp in scenario.components:
+        inst = instances[comp.name]
+        given = {var.name: value for var, value in values[comp.name]}
+        source = str(scenario.path.parent / comp.parameter_sources[-1]) if comp.parameter_sources else str(scenario.path)
+        rows = []
+        for name, var in inst.variables.items():
+            if var.causality not in ("parameter", "input") or f"{comp.name}.{name}" in fed:
+                continue
+            default = _start(var)
+            rows.append(Setting(f"{comp.name}.{name}", units.unit_of_variable(var), given.get(name, default), default,
+                                source if name in given else None))
+        variables[comp.name] = rows
+    return _experiment_settings(scenario, instances), variables
+
+
+def _experiment_settings(scenario: Scenario, instances: dict[str, Instance]) -> list[Setting]:
+    """Start time, stop time, step size (each beside the FMUs' DefaultExperiment: one value if they agree, else
+    'component: value' for each) and the coupling (default explicit)."""
+    def default(field: str) -> Any:
+        found = {name: getattr(inst.model_description.defaultExperiment, field, None) for name, inst in instances.items()
+                 if inst.model_description.defaultExperiment is not None}
+        found = {name: float(v) for name, v in found.items() if v is not None}
+        if len(set(found.values())) <= 1:
+            return next(iter(found.values()), None)
+        return ", ".join(f"{name}: {v:g}" for name, v in found.items())
+
+    where = str(scenario.path)
+    return [Setting("start time", "s", scenario.start_time, default("startTime"), where),
+            Setting("stop time", "s", scenario.stop_time, default("stopTime"), where if scenario.stop_time is not None else None),
+            Setting("step size", "s", scenario.step_size, default("stepSize"), where if scenario.step_size is not None else None),
+            Setting("coupling", None, scenario.coupling or "explicit", "explicit", where if scenario.coupling else None)]
+
+
+def _start(var) -> Any:
+    """An fmpy variable's declared start value in its type (its text if that does not parse; None: none)."""
+    if var.start is None:
+        return None
+    try:
+        return parse_value(str(var.start), var.type, "")
+    except ScenarioError:
+        return var.start

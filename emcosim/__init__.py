@@ -35,13 +35,7 @@ from .api import (  # noqa: E402 - after __version__, which the build reads
     write_scenario,
 )
 
-<<<<<<< HEAD
 __all__ = ["__version__", "Result", "ResultNotAccepted", "ResultNotAcceptedWarning",
            "RunOptions", "Scenario", "build_plant", "certify", "check_plant",
            "default_record", "figure", "find_scenario", "linearize", "linearize_fmu", "load_scenario", "paper_fmu_dir",
-           "run", "scenario_dirs", "scenario_names", "sweep", "units_of", "write_scenario"]
-=======
-__all__ = ["__version__", "Result", "RunOptions", "Scenario", "build_plant", "certify", "check_plant",
-           "default_record", "figure", "find_scenario", "load_scenario", "paper_fmu_dir", "run", "scenario_dirs",
-           "scenario_names", "settings", "sweep", "units_of", "write_scenario"]
->>>>>>> h41-tools
+           "run", "scenario_dirs", "scenario_names", "settings", "sweep", "units_of", "write_scenario"]

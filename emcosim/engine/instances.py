@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from . import fmi, tempdirs
+from . import fmi, stopping, tempdirs
 from .archive import extract_archive
-from .errors import ScenarioError
+from .errors import Interrupted, ScenarioError
 from .ssd import Scenario
 
 
@@ -61,6 +61,11 @@ def instantiate(inst: Instance, workdirs: list, model_exchange: bool = False) ->
     try:
         inst.fmu, inst.callbacks = fmi.instantiate(inst.model_description, unzipdir, inst.name, model_exchange, log)
     except Exception:
+        signum = stopping.requested()
+        if signum is not None:
+            # a stop was asked for and a second signal landed inside the FMU's instantiation (a Python FMU
+            # turns the Signalled into its own fatal error, issue 40): the run was stopped, not failed
+            raise Interrupted(signum) from None
         raise ScenarioError(f"{inst.path}: component '{inst.name}' could not be instantiated"
                             f"{last_message(inst)}") from None
     inst.model_exchange = model_exchange

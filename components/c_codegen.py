@@ -950,6 +950,8 @@ def design_checks_c_source(desc: Description, design: str, gain_parameters: Sequ
         raise ValueError(f"{desc.source}: {design}'s design matrices exceed emc_controller.c's buffer")
     table = []
     for check, test, at_reference, numbers, note in rows:
+        if not 1 <= len(numbers) <= 2:                  # emc_design_check.number[2] (fmus/native/emc_controller.h)
+            raise ValueError(f"{design}: the check {check!r} has {len(numbers)} numbers; the C table holds 1 or 2")
         entries = ", ".join(f"{{{c_string(label)}, {offsets[f][0]}, {offsets[f][1]}}}" for label, f in numbers)
         table.append(f"    {{{c_string(check)}, {test}, {at_reference}, {len(numbers)}, {{{entries}}}, {c_string(note)}}},")
     controller = re.sub(r"(\d)$", r" \1", design)

@@ -135,6 +135,14 @@ static fmi2Status check_conditions(emc_instance *c, const char *function, const 
         const char *note = check->note;
         int verdict = EMC_HOLDS;
         if (check->at_reference && EMC_TRACKING && (!reference || !at_reference)) continue;  /* not applicable */
+        if (check->count < 1 || check->count > 2) return emc_fail(c, fmi2Error, "%s: design check %d of %d: %d numbers "
+                                                                  "(1 or 2)", function, k, EMC_N_DESIGN_CHECKS, check->count);
+        for (i = 0; i < check->count; i++) {       /* every matrix inside v: the table is read at checked indices */
+            const int o = check->number[i].offset, n = check->number[i].order;
+            if (n < 1 || n > EMC_DESIGN_MAX_ORDER || o < 0 || o > EMC_DESIGN_VALUES - n * n)
+                return emc_fail(c, fmi2Error, "%s: design check %s: a matrix of order %d at %d outside the %d values",
+                                function, check->name, n, o, EMC_DESIGN_VALUES);
+        }
         for (i = 0; i < check->count; i++) {
             const double *A = v + check->number[i].offset;
             int n = check->number[i].order;

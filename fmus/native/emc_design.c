@@ -234,7 +234,8 @@ double emc_spectral_abscissa(const double *c, int n)
                 zi += im[j];
                 count++;
             }
-        zr /= count, zi /= count;
+        if (count == 0) zr = re[k], zi = im[k], count = 1;     /* a root that is not finite: no cluster */
+        else zr /= count, zi /= count;
         for (it = 0; count > 1 && it < EMC_POLISH; it++) {
             derivative_at(c, n, count - 1, zr, zi, f, g);
             d = g[0] * g[0] + g[1] * g[1];

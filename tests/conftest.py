@@ -96,3 +96,15 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.get_closest_marker("reliability") is not None and item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(scope="session")
+def c_calls(tmp_path_factory):
+    """tests/fixtures/c_calls.c compiled once (tests/c_host.py): a plain C host that replays FMI calls."""
+    from tests.c_host import CALLS_SOURCE, compile_c_host
+
+    exe = tmp_path_factory.mktemp("c_calls") / "c_calls"
+    reason = compile_c_host(exe, CALLS_SOURCE)
+    if reason:
+        pytest.skip(reason)
+    return exe

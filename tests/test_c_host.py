@@ -25,7 +25,6 @@ from components import catalog, maglev, mems, references
 from components.plant_step import PlantStepper
 
 from .c_host import (
-    CALLS_SOURCE,
     CONTROLLER_INPUTS,
     LOOP_SOURCE,
     THREADS_SOURCE,
@@ -120,15 +119,6 @@ def test_closed_loop_of_two_fmus_in_c_host_equals_components(c_loop, fmus, tmp_p
 
 
 # ---- the loader --------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def c_calls(tmp_path_factory) -> Path:
-    exe = tmp_path_factory.mktemp("c_calls") / "c_calls"
-    reason = compile_c_host(exe, CALLS_SOURCE)
-    if reason:
-        pytest.skip(reason)
-    return exe
-
-
 @pytest.fixture(scope="module")
 def toys(tmp_path_factory) -> dict[str, Path]:
     return toy_fmus(tmp_path_factory.mktemp("toys"))

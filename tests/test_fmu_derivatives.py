@@ -11,7 +11,7 @@ from fmpy.fmi1 import FMICallException
 
 from components import catalog
 from components.plant_step import PlantStepper, simulate_polynomial
-from tests.c_host import CALLS_SOURCE, compile_c_host, extract, run_calls
+from tests.c_host import extract, run_calls
 from tests.helpers import Slave, richardson_derivative
 
 PLANTS = ("MEMS", "Maglev")
@@ -183,15 +183,6 @@ def test_reference_output_derivatives_follow_time_and_restored_states(fmus):
 
 
 # ---- the same calls from C -------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def c_calls(tmp_path_factory):
-    exe = tmp_path_factory.mktemp("c_calls") / "c_calls"
-    reason = compile_c_host(exe, CALLS_SOURCE)
-    if reason:
-        pytest.skip(reason)
-    return exe
-
-
 def test_derivative_functions_of_the_fmus_in_c_host(c_calls, fmus, tmp_path):
     """A C host under env -i: the MEMS plant steps with a polynomial input and answers x_e' and x_e''; the
     Theorem 2 controller answers du/dx_e and du/dt; the reference answers q*''''. All equal components/."""

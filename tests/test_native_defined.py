@@ -17,20 +17,11 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from .c_host import CALLS_SOURCE, compile_c_host, extract, run_calls
+from .c_host import extract, run_calls
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-
-
-@pytest.fixture(scope="module")
-def c_calls(tmp_path_factory) -> Path:
-    exe = tmp_path_factory.mktemp("c_calls") / "c_calls"
-    reason = compile_c_host(exe, CALLS_SOURCE)
-    if reason:
-        pytest.skip(reason)
-    return exe
 
 
 def _statuses(lines: list[list[str]]) -> list[tuple[str, int]]:

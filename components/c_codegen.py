@@ -356,7 +356,7 @@ def controller_c_source(desc: Description, design: str, gain_parameters: Sequenc
         if tracking:
             functions.append(w_x.function(
                 "ctrl_sens", [*N.R_1.jacobian(jet), *N.R_2.jacobian(jet), *N.R_2.jacobian(N.x), *N.p.jacobian(jet)],
-                "(dR_1/d jet, dR_2/d jet, dR_2/d x_e*, dp*/d jet), row-major: the implicit function theorem"))
+                "(dR_1/d jet, dR_2/d jet, dR_2/d(x_e*), d(p*)/d jet), row-major: the implicit function theorem"))
     Rs = (G["R_e_bar"] + G["R_e_bar"].T) / 2
     check_weight = not (weight == "W" and G["W"] == sympy.eye(e))
     S = desc.R_m - G["D_d"].T * Rs.inv() * G["D_d"] / 4 if STRICT_PH[design] >= 0 else sympy.zeros(m, m)

@@ -16,14 +16,12 @@ import pytest
 from tests.fuzz.targets import TARGETS, build_fmu, compile_harness, fuzzer_available, run_fuzzer
 
 FUZZ_SECONDS = 8
-# the defects of issue 40 that the harness finds on main (docs/reliability.md, round 5); h40-c fixes them in the C
-# fmi2DoStep(1.8e308, 1.8e308) answered fmi2OK (item 10, the framework) can turn up in any target within the budget
-FIXED_BY_H40C = set(TARGETS)
+# on e41287e the harness found fmi2DoStep(1.8e308, 1.8e308) answered fmi2OK (issue 40 item 10, the framework)
+# within this budget in several targets; fixed since (docs/reliability.md, round 5)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("target", [pytest.param(t, marks=pytest.mark.xfail(reason="fixed by h40-c", strict=False))
-                                    if t in FIXED_BY_H40C else t for t in TARGETS])
+@pytest.mark.parametrize("target", TARGETS)
 def test_fuzz_the_fmi_surface(tmp_path: Path, target: str) -> None:
     why = fuzzer_available(tmp_path / "probe")
     if why:

@@ -81,7 +81,7 @@ def test_scenario_of_a_design_that_does_not_apply_is_refused(tmp_path, capsys):
     args = ["plant", "scenario", str(SOLENOID), "--controller", "Theorem3", "--out", str(tmp_path / "s"),
             "--stop-time", "0.1", "--step-size", "1e-4"]
     assert main(args) == 1
-    assert "no design 'Theorem3'" in capsys.readouterr().err
+    assert "solenoid.toml: Theorem3 does not apply: Assumption 4" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
 
 
